@@ -1,0 +1,70 @@
+"""stickslip_jax: differentiable simulation and identification of piezo stick-slip actuators.
+
+The library never changes global JAX settings. Enable double precision before use
+(the CLI does this for you)::
+
+    import jax
+    jax.config.update("jax_enable_x64", True)
+"""
+
+from .files import InputOverwriteError, OutputExistsError
+from .io import (
+    DriveInfo,
+    Recording,
+    RecordingError,
+    infer_drive,
+    load_recording,
+    load_recordings,
+    save_recording,
+)
+from .model.actuator import Actuator
+from .model.base import (
+    AbstractExtension,
+    AbstractFriction,
+    AbstractHysteresis,
+    AbstractInputStage,
+    AbstractOutputMap,
+    CoreState,
+    DriveContext,
+    ExtensionTerms,
+)
+from .model.friction import ElastoPlastic, LuGre, StribeckElastoPlastic, transition_alpha
+from .model.hysteresis import PrandtlIshlinskii, default_thresholds
+from .model.piezo import PiezoElement
+from .model.profiles import LU2015_TABLE, PROFILES, lu2015_slc1720
+from .model.slider import Slider
+from .model.stages import IdentityInput, IdentityOutput
+from .params import (
+    ParameterError,
+    actuator_from_params,
+    load_params,
+    params_from_actuator,
+    save_params,
+)
+from .signals import make_recording, sawtooth, sine, step
+from .simulate import (
+    DEFAULT_SUBSTEPS,
+    drive_context,
+    simulate,
+    simulate_batch,
+    simulate_recording,
+    simulate_recordings,
+    stack_drives,
+)
+from .solvers import EULER, HEUN, RK4, SOLVERS, ExplicitRK
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AbstractExtension", "AbstractFriction", "AbstractHysteresis", "AbstractInputStage",
+    "AbstractOutputMap", "Actuator", "CoreState", "DEFAULT_SUBSTEPS", "DriveContext",
+    "DriveInfo", "EULER", "ElastoPlastic", "ExplicitRK", "ExtensionTerms", "HEUN",
+    "IdentityInput", "IdentityOutput", "InputOverwriteError", "LU2015_TABLE", "LuGre",
+    "OutputExistsError", "PROFILES", "ParameterError", "PiezoElement", "PrandtlIshlinskii",
+    "RK4", "Recording", "RecordingError", "SOLVERS", "Slider", "StribeckElastoPlastic",
+    "actuator_from_params", "default_thresholds", "drive_context", "infer_drive",
+    "load_params", "load_recording", "load_recordings", "lu2015_slc1720", "make_recording",
+    "params_from_actuator", "save_params", "save_recording", "sawtooth", "simulate",
+    "simulate_batch", "simulate_recording", "simulate_recordings", "sine", "stack_drives",
+    "step", "transition_alpha",
+]

@@ -1,0 +1,68 @@
+"""Shared CLI plumbing: JAX set-up, error reporting, progress."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from pathlib import Path
+
+import typer
+
+EXIT_BAD_INPUT = 2
+EXIT_FAILED = 3
+
+
+def setup_jax() -> None:
+    """float64 and a persistent compilation cache, so a second run skips compiling.
+
+    The cache lives in ``$STICKSLIP_CACHE_DIR`` (default ``~/.cache/stickslip_jax``);
+    set ``STICKSLIP_CACHE_DIR=off`` to disable it.
+    """
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    cache = os.environ.get("STICKSLIP_CACHE_DIR", str(Path.home() / ".cache" / "stickslip_jax"))
+    if cache.lower() != "off":
+        with contextlib.suppress(Exception):  # a read-only home must not stop the tool
+            Path(cache).mkdir(parents=True, exist_ok=True)
+            jax.config.update("jax_compilation_cache_dir", cache)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
+def fail(message: str, code: int = EXIT_BAD_INPUT) -> typer.Exit:
+    """Print ``error: message`` on stderr and return the Exit to raise."""
+    typer.echo(f"error: {message}", err=True)
+    return typer.Exit(code)
+
+
+def user_errors():
+    """Exception types that are the user's to fix (reported without a traceback)."""
+    from ..files import InputOverwriteError, OutputExistsError
+    from ..io import RecordingError
+    from ..params import ParameterError
+
+    return (RecordingError, ParameterError, OutputExistsError, InputOverwriteError,
+            IsADirectoryError, FileNotFoundError)
+
+
+@contextlib.contextmanager
+def reported_errors():
+    """Turn user errors into a one-line message and exit code 2."""
+    try:
+        yield
+    except user_errors() as err:
+        raise fail(str(err)) from None
+
+
+@contextlib.contextmanager
+def status(message: str):
+    """A spinner on stderr while slow work runs (plain line when not a terminal)."""
+    if sys.stderr.isatty():
+        from rich.console import Console
+
+        with Console(stderr=True).status(message):
+            yield
+    else:
+        typer.echo(message, err=True)
+        yield

@@ -1,0 +1,36 @@
+"""The ``stickslip`` command line: thin commands over the library.
+
+Heavy imports (jax, matplotlib) happen inside the commands, so ``--help`` is fast.
+"""
+
+from __future__ import annotations
+
+import typer
+
+from . import params_cmd, simulate
+
+app = typer.Typer(
+    name="stickslip",
+    help="Simulate and identify piezoelectric stick-slip actuators (JAX).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+app.command("simulate", epilog=simulate.EPILOG)(simulate.simulate_command)
+app.command("params", epilog=params_cmd.EPILOG)(params_cmd.params_command)
+
+
+def _version(value: bool) -> None:
+    if value:
+        from .. import __version__
+
+        typer.echo(f"stickslip_jax {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                 help="Print the version and exit."),
+) -> None:
+    """Simulate and identify piezoelectric stick-slip actuators (JAX)."""

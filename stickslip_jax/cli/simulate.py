@@ -1,0 +1,118 @@
+"""``stickslip simulate``: drive the model with a generated or recorded voltage."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from pathlib import Path
+
+import typer
+
+from .common import fail, reported_errors, setup_jax, status
+
+
+class Waveform(StrEnum):
+    sawtooth = "sawtooth"
+    sine = "sine"
+    step = "step"
+
+
+class Direction(StrEnum):
+    forward = "forward"
+    backward = "backward"
+
+
+class Unit(StrEnum):
+    m = "m"
+    um = "um"
+    nm = "nm"
+
+
+EPILOG = """Examples:
+
+  stickslip simulate --waveform sawtooth --amplitude 40 --frequency 50
+  --direction forward --duration 0.2 --out trace.csv
+
+  stickslip simulate --params P.json --voltage-from REC.csv --out SIM.csv --plot SIM.png
+"""
+
+
+def simulate_command(
+    out: Path = typer.Option(..., "--out", help="Output recording (.csv or .npz)."),
+    params: Path | None = typer.Option(
+        None, "--params", help="Parameter JSON (MODEL.md names, SI). Default: the "
+        "lu2015_slc1720 profile."),
+    voltage_from: Path | None = typer.Option(
+        None, "--voltage-from", help="Drive the model with this recording's voltage; "
+        "its time column and metadata are kept."),
+    waveform: Waveform = typer.Option(Waveform.sawtooth, help="Generated drive waveform."),
+    amplitude: float = typer.Option(40.0, help="Drive amplitude A [V]."),
+    frequency: float = typer.Option(50.0, help="Sawtooth/sine frequency [Hz]."),
+    direction: Direction = typer.Option(Direction.forward, help="Sawtooth direction."),
+    duration: float = typer.Option(0.2, help="Length of the generated drive [s]."),
+    sample_rate: float = typer.Option(25000.0, help="Sample rate of the generated drive [Hz]."),
+    t0: float = typer.Option(2e-3, help="Step time of a step drive [s]."),
+    unit: Unit = typer.Option(Unit.um, help="Unit of the written position column."),
+    substeps: int = typer.Option(0, help="RK4 sub-steps per sample (0: the default)."),
+    plot: Path | None = typer.Option(None, "--plot", help="Also draw the trace to this image."),
+    force: bool = typer.Option(False, "--force", help="Replace existing output files."),
+) -> None:
+    """Simulate the actuator and write the output q = x1 + x2 as a recording."""
+    with reported_errors():
+        from .. import io, signals
+        from ..files import check_output_path
+        from ..model.profiles import lu2015_slc1720
+        from ..params import load_params
+
+        inputs = [p for p in (params, voltage_from) if p is not None]
+        check_output_path(out, force=force, inputs=inputs)
+        if plot is not None:
+            check_output_path(plot, force=force, inputs=inputs + [out])
+        if voltage_from is not None:
+            rec = io.load_recording(voltage_from, require_output=False)
+        else:
+            rec = _generated(signals, waveform, amplitude, frequency, direction, duration,
+                             sample_rate, t0)
+        if substeps < 0:
+            raise fail("--substeps must be ≥ 0 (0 selects the default).")
+        setup_jax()
+        from ..simulate import DEFAULT_SUBSTEPS, simulate_recording
+
+        actuator = load_params(params) if params is not None else lu2015_slc1720()
+        with status(f"simulating {rec.n} samples ({rec.regime})..."):
+            q = simulate_recording(actuator, rec, substeps=substeps or DEFAULT_SUBSTEPS)
+        result = rec.with_position_m(q, unit=unit.value)
+        written = io.save_recording(result, out, force=force, inputs=inputs)
+        typer.echo(f"wrote {written} ({rec.n} samples, q from {q.min() * 1e6:.4g} to "
+                   f"{q.max() * 1e6:.4g} µm)")
+        if plot is not None:
+            from ..plots import plot_trace
+
+            meas = None
+            if voltage_from is not None and rec.position is not None:
+                meas = rec.position_m
+            title = f"{rec.name}: {rec.regime}"
+            plot_trace(rec.time_s, rec.voltage_V, q, q_meas_m=meas, title=title, path=plot)
+            typer.echo(f"wrote {plot}")
+
+
+def _generated(signals, waveform, amplitude, frequency, direction, duration, sample_rate, t0):
+    if not duration > 0 or not sample_rate > 0:
+        raise fail("--duration and --sample-rate must be positive.")
+    if waveform is not Waveform.step and not frequency > 0:
+        raise fail("--frequency must be positive for sawtooth and sine drives.")
+    if waveform is Waveform.sawtooth:
+        t, u = signals.sawtooth(amplitude, frequency, direction=direction.value,
+                                duration_s=duration, sample_rate_Hz=sample_rate)
+        kw = dict(frequency_Hz=frequency, direction=direction.value)
+    elif waveform is Waveform.sine:
+        t, u = signals.sine(amplitude, frequency, duration_s=duration, sample_rate_Hz=sample_rate)
+        kw = dict(frequency_Hz=frequency)
+    else:
+        t, u = signals.step(amplitude, t0_s=t0, duration_s=duration, sample_rate_Hz=sample_rate)
+        kw = {}
+    if len(t) < 16:
+        raise fail(f"the drive has only {len(t)} samples; at least 16 are needed "
+                   "(raise --duration or --sample-rate).")
+    name = f"{waveform.value}_{amplitude:g}V" + (f"_{frequency:g}Hz" if kw else "")
+    return signals.make_recording(t, u, waveform=waveform.value, amplitude_V=amplitude,
+                                  name=name, **kw)

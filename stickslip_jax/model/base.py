@@ -1,0 +1,219 @@
+"""Abstract interfaces of the actuator's components.
+
+Every component is an equinox Module: its array fields are the (differentiable)
+parameters, its static fields are structure. A new friction law, hysteresis law or
+model extension is one new final class implementing one of these interfaces; the
+simulator never needs to change.
+
+Conventions shared by all components
+------------------------------------
+- SI units inside: m, s, kg, N, V.
+- ``drive`` is a :class:`DriveContext`: what the recording's drive is (direction,
+  amplitude, frequency). Components that depend on the drive (``z_ba`` per
+  direction, a ``z_ba`` surface) read it; the others ignore it.
+- State vectors are flat 1-D float arrays. A component with internal states says how
+  many (``n_states``, static) and provides their initial value and rate.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+
+class DriveContext(eqx.Module):
+    """What drives one recording, as seen by drive-dependent parameters.
+
+    Attributes
+    ----------
+    backward:
+        1.0 for a backward sawtooth, 0.0 otherwise (forward, sine, step) [-].
+        A float rather than a bool so that it batches under ``vmap``.
+    amplitude:
+        Drive amplitude A [V] (0 when unknown).
+    frequency:
+        Drive frequency f [Hz] (0 when unknown or not periodic).
+    """
+
+    backward: Float[Array, ""]
+    amplitude: Float[Array, ""]
+    frequency: Float[Array, ""]
+
+    @staticmethod
+    def make(backward: bool | float = False, amplitude: float = 0.0, frequency: float = 0.0):
+        """Build a context from Python values (or traced scalars)."""
+        return DriveContext(
+            jnp.asarray(backward, dtype=float),
+            jnp.asarray(amplitude, dtype=float),
+            jnp.asarray(frequency, dtype=float),
+        )
+
+
+class ContactKinematics(eqx.Module):
+    """Relative motion at the contact, handed to friction laws.
+
+    Attributes
+    ----------
+    xdot:
+        Relative velocity v1 - v2 of piezo tip over slider [m/s].
+    """
+
+    xdot: Float[Array, ""]
+
+
+class AbstractHysteresis(eqx.Module):
+    """Rate-independent map from voltage to free stroke, Γ[U] [m].
+
+    The memory (e.g. play-operator states [V]) is carried by the simulator and
+    committed once per sub-step: ``output`` is evaluated with the memory of the
+    sub-step's start (see MODEL.md "State and input").
+    """
+
+    @property
+    @abc.abstractmethod
+    def n_memory(self) -> int:
+        """Number of memory states."""
+
+    @abc.abstractmethod
+    def initial_memory(self, u0: Float[Array, ""]) -> Float[Array, " n"]:
+        """Memory at rest under voltage ``u0`` [V], as if it had risen from 0."""
+
+    @abc.abstractmethod
+    def output(self, memory: Float[Array, " n"], u: Float[Array, ""]) -> Float[Array, ""]:
+        """Free stroke Γ [m] for voltage ``u`` [V], given the memory of the sub-step start."""
+
+    @abc.abstractmethod
+    def update(self, memory: Float[Array, " n"], u: Float[Array, ""]) -> Float[Array, " n"]:
+        """Memory after the voltage has reached ``u`` [V]."""
+
+
+class AbstractFriction(eqx.Module):
+    """A friction law with one internal (bristle / elastic-strain) state ``z`` [m].
+
+    The friction force acts on the piezo element with a minus sign and on the slider
+    with a plus sign (MODEL.md: ``Mp·ẍ1 = ... − Ff``, ``Ms·ẍ2 = Ff + ...``).
+    """
+
+    @abc.abstractmethod
+    def z_rate(self, z, xdot, drive: DriveContext):
+        """dz/dt [m/s] for elastic state ``z`` [m] and relative velocity ``xdot`` [m/s]."""
+
+    @abc.abstractmethod
+    def force(self, z, zdot, xdot, drive: DriveContext):
+        """Friction force Ff [N] from ``z`` [m], its rate [m/s] and ``xdot`` [m/s]."""
+
+    @abc.abstractmethod
+    def project(self, z, xdot, drive: DriveContext):
+        """Map ``z`` back into its admissible set after a sub-step (saturation) [m]."""
+
+    @abc.abstractmethod
+    def z_at_rest(self, force, drive: DriveContext):
+        """Elastic state [m] that carries a static friction force ``force`` [N]."""
+
+    @abc.abstractmethod
+    def stiffness(self, drive: DriveContext):
+        """Small-motion contact stiffness dFf/dz [N/m] (for linearisation)."""
+
+
+class AbstractInputStage(eqx.Module):
+    """Map from the recorded command voltage to the voltage reaching the piezo.
+
+    The default (:class:`IdentityInput`) passes the command through. Amplifier
+    dynamics (low-pass, slew limit) are stages with internal states.
+    """
+
+    @property
+    @abc.abstractmethod
+    def n_states(self) -> int:
+        """Number of internal states."""
+
+    @property
+    def is_identity(self) -> bool:
+        """True only for the pass-through stage (lets the simulator take a fast path)."""
+        return False
+
+    @abc.abstractmethod
+    def initial_state(self, u0):
+        """States at rest under command ``u0`` [V]."""
+
+    @abc.abstractmethod
+    def rate(self, state, u_command):
+        """Time derivative of the states given the command voltage [V]."""
+
+    @abc.abstractmethod
+    def voltage(self, state, u_command):
+        """Voltage reaching the piezo [V]."""
+
+
+class CoreState(eqx.Module):
+    """The mechanical state handed to extensions (read-only views, SI units).
+
+    Attributes: x1, v1 (piezo deformation [m] and rate [m/s]), x2, v2 (slider
+    position [m], velocity [m/s]), z (elastic strain [m]), friction force ff [N],
+    u (voltage at the piezo [V]), stroke (free stroke Γ [m]).
+    """
+
+    x1: Float[Array, ""]
+    v1: Float[Array, ""]
+    x2: Float[Array, ""]
+    v2: Float[Array, ""]
+    z: Float[Array, ""]
+    ff: Float[Array, ""]
+    u: Float[Array, ""]
+    stroke: Float[Array, ""]
+
+
+class ExtensionTerms(eqx.Module):
+    """Additive contributions of one extension to the core equations.
+
+    All default to zero. ``stroke`` [m] adds to the free stroke Γ (creep);
+    ``force_piezo`` and ``force_slider`` [N] add to the right-hand sides of the
+    piezo and slider equations; ``friction`` [N] adds to the friction force (acts on
+    both bodies with opposite signs); ``output`` [m] adds to the measured q.
+    """
+
+    stroke: Float[Array, ""] = 0.0
+    force_piezo: Float[Array, ""] = 0.0
+    force_slider: Float[Array, ""] = 0.0
+    friction: Float[Array, ""] = 0.0
+    output: Float[Array, ""] = 0.0
+
+
+class AbstractExtension(eqx.Module):
+    """Extra physics: optional internal states plus additive terms.
+
+    Creep, a structural mode, extra forces and learned corrections are extensions.
+    ``terms`` is evaluated from the extension's own states and the mechanical
+    state; terms that change the stroke must not depend on the stroke itself.
+    """
+
+    @property
+    @abc.abstractmethod
+    def n_states(self) -> int:
+        """Number of internal states (may be 0)."""
+
+    @abc.abstractmethod
+    def initial_state(self, u0):
+        """States at rest under voltage ``u0`` [V]."""
+
+    @abc.abstractmethod
+    def rate(self, state, core: CoreState, drive: DriveContext):
+        """Time derivative of the extension's states."""
+
+    @abc.abstractmethod
+    def terms(self, state, core: CoreState, drive: DriveContext) -> ExtensionTerms:
+        """Additive contributions to the core equations."""
+
+
+class AbstractOutputMap(eqx.Module):
+    """What the sensor makes of the model output q = x1 + x2 (+ extension output).
+
+    Applied to whole traces after the simulation (delay, drift, gain).
+    """
+
+    @abc.abstractmethod
+    def __call__(self, t: Float[Array, " T"], q: Float[Array, " T"]) -> Float[Array, " T"]:
+        """Measured output [m] at times ``t`` [s] for model output ``q`` [m]."""

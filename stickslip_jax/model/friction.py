@@ -1,0 +1,204 @@
+"""Friction laws between the piezo tip and the slider.
+
+Non-smooth functions and how they are handled (so that fitting keeps useful
+derivatives):
+
+- ``sgn(ẋ)`` in ``z_ss``: never evaluated as such. With ``z_ss = sgn(ẋ)·|z_ss|`` the
+  elasto-plastic rate ``ż = ẋ·(1 − α·z/z_ss)`` equals ``ẋ − α·|ẋ|·z/|z_ss|`` wherever
+  ``α ≠ 0`` (α is non-zero only when ``ẋ`` and ``z`` share a sign). That form is
+  continuous in ``ẋ`` (Lipschitz), so no sign function enters the integrator and the
+  vector field has no jump for the Runge-Kutta stages to straddle.
+- The α switch: the contract's exact piecewise form. Its sine transition is C¹ at
+  both ends (slope 0 at ``z_ba`` and at ``|z_ss|``), so the derivative with respect to
+  ``z``, ``z_ba`` and ``zba_ratio`` is continuous except at the sign test, where α
+  itself is 0 on both sides of ``z = 0``. The branches are ``jnp.where`` selections of
+  finite expressions (the division by ``|z_ss| − z_ba`` is guarded for ratio 1), so
+  no NaN leaks into gradients.
+- Saturation ``|z| ≤ |z_ss|`` after each sub-step: a ``clip``. Its derivative is the
+  identity inside and ``±d|z_ss|`` on the bound, which is the exact derivative of the
+  discrete map; it carries the sensitivity of the slip phase to ``z_ba``.
+"""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .base import AbstractFriction, DriveContext
+
+
+def _f(x):
+    return jnp.asarray(x, dtype=float)
+
+
+def transition_alpha(abs_z, z_ba, zss_mag):
+    """Lu eq. 8 for same-sign motion: 0 up to ``z_ba``, sine ramp, 1 from ``|z_ss|``.
+
+    ``abs_z``, ``z_ba``, ``zss_mag`` in m. When ``|z_ss| = z_ba`` (ratio 1) the ramp
+    collapses into a step at ``z_ba``.
+    """
+    width = zss_mag - z_ba
+    safe_width = jnp.where(width > 0, width, 1.0)
+    ramp = 0.5 * jnp.sin(jnp.pi * (abs_z - 0.5 * (zss_mag + z_ba)) / safe_width) + 0.5
+    return jnp.where(abs_z <= z_ba, 0.0, jnp.where(abs_z >= zss_mag, 1.0, ramp))
+
+
+class AbstractElastoPlastic(AbstractFriction):
+    """Elasto-plastic friction (Dupont et al. 2002) with a direction-aware ``z_ss``.
+
+    ``Ff = ρ0·z + ρ1·ż + ρ2·ẋ``, ``ż = ẋ·(1 − α(z, ẋ)·z/z_ss(ẋ))`` with
+    ``z_ss(ẋ) = sgn(ẋ)·|z_ss(ẋ)|`` (Lu §III-C: the sign switch). Subclasses give the
+    magnitude ``|z_ss(ẋ)|`` [m].
+
+    Attributes
+    ----------
+    rho0: contact stiffness [N/m].
+    rho1: micro-damping [N·s/m] (paper: 0).
+    rho2: viscous friction coefficient [N·s/m] (paper: neglected).
+    z_ba_forward, z_ba_backward: break-away displacement for forward / backward drive
+        [m]; recordings without a direction (step, sine) use the forward value.
+    zba_ratio: ``z_ba/|z_ss|`` in (0, 1] [-] (paper: 0.667).
+    """
+
+    rho0: eqx.AbstractVar[Float[Array, ""]]
+    rho1: eqx.AbstractVar[Float[Array, ""]]
+    rho2: eqx.AbstractVar[Float[Array, ""]]
+    z_ba_forward: eqx.AbstractVar[Float[Array, ""]]
+    z_ba_backward: eqx.AbstractVar[Float[Array, ""]]
+    zba_ratio: eqx.AbstractVar[Float[Array, ""]]
+
+    def z_ba(self, drive: DriveContext):
+        """Break-away displacement for the drive's direction [m]."""
+        return self.z_ba_forward + drive.backward * (self.z_ba_backward - self.z_ba_forward)
+
+    @abc.abstractmethod
+    def zss_magnitude(self, xdot, drive: DriveContext):
+        """Steady-state elastic strain magnitude ``|z_ss(ẋ)|`` [m]."""
+
+    def z_rate(self, z, xdot, drive):
+        zss = self.zss_magnitude(xdot, drive)
+        same_sign = xdot * z > 0
+        alpha = jnp.where(same_sign, transition_alpha(jnp.abs(z), self.z_ba(drive), zss), 0.0)
+        return xdot - alpha * jnp.abs(xdot) * z / zss
+
+    def force(self, z, zdot, xdot, drive):
+        return self.rho0 * z + self.rho1 * zdot + self.rho2 * xdot
+
+    def project(self, z, xdot, drive):
+        zss = self.zss_magnitude(xdot, drive)
+        return jnp.clip(z, -zss, zss)
+
+    def z_at_rest(self, force, drive):
+        return force / self.rho0
+
+    def stiffness(self, drive):
+        return self.rho0
+
+    def coulomb_force(self, drive: DriveContext):
+        """Kinetic (Coulomb) friction level ``f_c = ρ0·z_ba/zba_ratio`` [N]."""
+        return self.rho0 * self.z_ba(drive) / self.zba_ratio
+
+
+class ElastoPlastic(AbstractElastoPlastic):
+    """The paper's law (Lu eq. 16): constant ``f_ss = f_c``, so ``|z_ss| = z_ba/ratio``."""
+
+    rho0: Float[Array, ""]
+    rho1: Float[Array, ""]
+    rho2: Float[Array, ""]
+    z_ba_forward: Float[Array, ""]
+    z_ba_backward: Float[Array, ""]
+    zba_ratio: Float[Array, ""]
+
+    def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, zba_ratio=0.667, rho1=0.0,
+                 rho2=0.0):
+        self.rho0 = _f(rho0)
+        self.rho1 = _f(rho1)
+        self.rho2 = _f(rho2)
+        self.z_ba_forward = _f(z_ba_forward)
+        self.z_ba_backward = _f(z_ba_forward if z_ba_backward is None else z_ba_backward)
+        self.zba_ratio = _f(zba_ratio)
+
+    def zss_magnitude(self, xdot, drive):
+        return self.z_ba(drive) / self.zba_ratio
+
+
+class StribeckElastoPlastic(AbstractElastoPlastic):
+    """Dupont's general law with the Stribeck steady state (Lu eq. 14).
+
+    ``f_ss(ẋ) = (f_max − f_c)/(1 + (ẋ/v_s)²) + f_c`` with ``f_c = ρ0·z_ba/ratio`` and
+    ``f_max = stribeck_ratio·f_c``; ``|z_ss(ẋ)| = f_ss(ẋ)/ρ0 ≥ z_ba/ratio``.
+
+    Extra attributes: ``stribeck_ratio`` ≥ 1 [-], ``v_s`` Stribeck velocity [m/s].
+    """
+
+    rho0: Float[Array, ""]
+    rho1: Float[Array, ""]
+    rho2: Float[Array, ""]
+    z_ba_forward: Float[Array, ""]
+    z_ba_backward: Float[Array, ""]
+    zba_ratio: Float[Array, ""]
+    stribeck_ratio: Float[Array, ""]
+    v_s: Float[Array, ""]
+
+    def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, stribeck_ratio, v_s,
+                 zba_ratio=0.667, rho1=0.0, rho2=0.0):
+        self.rho0 = _f(rho0)
+        self.rho1 = _f(rho1)
+        self.rho2 = _f(rho2)
+        self.z_ba_forward = _f(z_ba_forward)
+        self.z_ba_backward = _f(z_ba_forward if z_ba_backward is None else z_ba_backward)
+        self.zba_ratio = _f(zba_ratio)
+        self.stribeck_ratio = _f(stribeck_ratio)
+        self.v_s = _f(v_s)
+
+    def zss_magnitude(self, xdot, drive):
+        base = self.z_ba(drive) / self.zba_ratio
+        return base * (1.0 + (self.stribeck_ratio - 1.0) / (1.0 + (xdot / self.v_s) ** 2))
+
+
+class LuGre(AbstractFriction):
+    """LuGre friction (Canudas de Wit 1995; Nguyen eq. 8-10).
+
+    ``ż = ẋ − σ0·|ẋ|·z/g(ẋ)``, ``g(ẋ) = F_c + (F_s − F_c)·exp(−(ẋ/v_s)²)``,
+    ``Ff = σ0·z + σ1·ż + σ2·ẋ``. Its bristle deflection is self-bounded (no
+    saturation) and it has no pure-elastic region, hence no 0-amplitude effect.
+
+    Attributes: sigma0 [N/m], sigma1 [N·s/m], sigma2 [N·s/m], F_c Coulomb level [N],
+    F_s static level [N], v_s Stribeck velocity [m/s].
+    """
+
+    sigma0: Float[Array, ""]
+    sigma1: Float[Array, ""]
+    sigma2: Float[Array, ""]
+    F_c: Float[Array, ""]
+    F_s: Float[Array, ""]
+    v_s: Float[Array, ""]
+
+    def __init__(self, sigma0, sigma1, sigma2, F_c, F_s, v_s):
+        self.sigma0 = _f(sigma0)
+        self.sigma1 = _f(sigma1)
+        self.sigma2 = _f(sigma2)
+        self.F_c = _f(F_c)
+        self.F_s = _f(F_s)
+        self.v_s = _f(v_s)
+
+    def _g(self, xdot):
+        return self.F_c + (self.F_s - self.F_c) * jnp.exp(-((xdot / self.v_s) ** 2))
+
+    def z_rate(self, z, xdot, drive):
+        return xdot - self.sigma0 * jnp.abs(xdot) * z / self._g(xdot)
+
+    def force(self, z, zdot, xdot, drive):
+        return self.sigma0 * z + self.sigma1 * zdot + self.sigma2 * xdot
+
+    def project(self, z, xdot, drive):
+        return z
+
+    def z_at_rest(self, force, drive):
+        return force / self.sigma0
+
+    def stiffness(self, drive):
+        return self.sigma0
