@@ -17,6 +17,15 @@ from .io import (
     load_recordings,
     save_recording,
 )
+from .linear import (
+    SpectrumConsistency,
+    StickChain,
+    StickModes,
+    frequency_response,
+    spectrum_consistency,
+    stick_chain,
+    stick_modes,
+)
 from .model.actuator import Actuator
 from .model.base import (
     AbstractExtension,
@@ -28,7 +37,13 @@ from .model.base import (
     DriveContext,
     ExtensionTerms,
 )
-from .model.friction import ElastoPlastic, LuGre, StribeckElastoPlastic, transition_alpha
+from .model.friction import (
+    ConstantZssElastoPlastic,
+    ElastoPlastic,
+    LuGre,
+    StribeckElastoPlastic,
+    transition_alpha,
+)
 from .model.hysteresis import PrandtlIshlinskii, default_thresholds
 from .model.piezo import PiezoElement
 from .model.profiles import LU2015_TABLE, PROFILES, lu2015_slc1720
@@ -57,11 +72,14 @@ __version__ = "0.1.0"
 
 __all__ = [
     "AbstractExtension", "AbstractFriction", "AbstractHysteresis", "AbstractInputStage",
-    "AbstractOutputMap", "Actuator", "CoreState", "DEFAULT_SUBSTEPS", "DriveContext",
+    "AbstractOutputMap", "Actuator", "ConstantZssElastoPlastic", "CoreState",
+    "DEFAULT_SUBSTEPS", "DriveContext",
     "DriveInfo", "EULER", "ElastoPlastic", "ExplicitRK", "ExtensionTerms", "HEUN",
     "IdentityInput", "IdentityOutput", "InputOverwriteError", "LU2015_TABLE", "LuGre",
     "OutputExistsError", "PROFILES", "ParameterError", "PiezoElement", "PrandtlIshlinskii",
-    "RK4", "Recording", "RecordingError", "SOLVERS", "Slider", "StribeckElastoPlastic",
+    "RK4", "Recording", "RecordingError", "SOLVERS", "Slider", "SpectrumConsistency",
+    "StickChain", "StickModes", "StribeckElastoPlastic", "frequency_response",
+    "spectrum_consistency", "stick_chain", "stick_modes",
     "actuator_from_params", "default_thresholds", "drive_context", "infer_drive",
     "load_params", "load_recording", "load_recordings", "lu2015_slc1720", "make_recording",
     "params_from_actuator", "save_params", "save_recording", "sawtooth", "simulate",

@@ -202,3 +202,51 @@ class LuGre(AbstractFriction):
 
     def stiffness(self, drive):
         return self.sigma0
+
+
+class ConstantZssElastoPlastic(AbstractElastoPlastic):
+    """The pre-Lu elasto-plastic law with a constant positive ``z_ss`` (counter-example).
+
+    Lu et al. 2015 §III-C: many earlier uses of Dupont's model keep the steady-state
+    strain a positive constant, ``z_ss = +|z_ss|`` whatever the sign of ``ẋ``:
+
+        ż = ẋ·(1 − α(z, ẋ)·z/z_ss),    z_ss = +z_ba/zba_ratio  (constant, > 0)
+
+    with ``α`` from :func:`transition_alpha` where ``sgn(ẋ) = sgn(z)`` (Lu eq. 7-8)
+    and 0 elsewhere, and the same saturation ``|z| ≤ |z_ss|`` after each sub-step.
+    For ``ẋ > 0`` it is the Lu law. For ``ẋ < 0`` in the mixed regime
+    (``z_ba < |z| < |z_ss|``, ``z < 0``) the factor ``C = 1 − α·z/z_ss`` exceeds 1
+    (Lu eq. 9), so ``ż = C·ẋ`` outruns ``ẋ`` and the plastic rate
+    ``ẇ = ẋ − ż = (1 − C)·ẋ`` has the sign opposite to the motion (Lu eq. 10-12):
+    "elastic super-relaxation" in a one-directional motion, which the paper rules
+    out. It exists only to reproduce that proof (``tests/test_paper_claims.py``);
+    never use it to model an actuator.
+
+    Attributes: as :class:`ElastoPlastic` (rho0 [N/m], rho1, rho2 [N·s/m],
+    z_ba_forward, z_ba_backward [m], zba_ratio [-]).
+    """
+
+    rho0: Float[Array, ""]
+    rho1: Float[Array, ""]
+    rho2: Float[Array, ""]
+    z_ba_forward: Float[Array, ""]
+    z_ba_backward: Float[Array, ""]
+    zba_ratio: Float[Array, ""]
+
+    def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, zba_ratio=0.667, rho1=0.0,
+                 rho2=0.0):
+        self.rho0 = _f(rho0)
+        self.rho1 = _f(rho1)
+        self.rho2 = _f(rho2)
+        self.z_ba_forward = _f(z_ba_forward)
+        self.z_ba_backward = _f(z_ba_forward if z_ba_backward is None else z_ba_backward)
+        self.zba_ratio = _f(zba_ratio)
+
+    def zss_magnitude(self, xdot, drive):
+        return self.z_ba(drive) / self.zba_ratio
+
+    def z_rate(self, z, xdot, drive):
+        zss = self.zss_magnitude(xdot, drive)  # used as the signed z_ss: always > 0
+        same_sign = xdot * z > 0
+        alpha = jnp.where(same_sign, transition_alpha(jnp.abs(z), self.z_ba(drive), zss), 0.0)
+        return xdot * (1.0 - alpha * z / zss)

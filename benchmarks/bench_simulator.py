@@ -1,0 +1,944 @@
+"""Speed, accuracy, derivative cost and memory of the stickslip_jax simulator.
+
+One run, one trace: 1 s at 25 kHz of a 40 V, 50 Hz forward sawtooth (MODEL.md), the
+default profile ``lu2015_slc1720()``, RK4 with ``--substeps`` sub-steps per sample.
+Everything is float64. Usage (see benchmarks/README.md)::
+
+    .venv/bin/python benchmarks/bench_simulator.py --json out/bench_simulator.json
+    .venv/bin/python benchmarks/bench_simulator.py --quick      # smoke run
+
+What is timed
+-------------
+1. ``simulate`` (one recording) and ``simulate_batch`` with 17 rows (17 copies of the
+   trace: the scan does the same work whatever the rows hold), after compilation;
+   wall-clock medians and minima. Compile time two ways: first call minus the steady
+   median (after ``jax.clear_caches()``), and ``jax.jit(...).lower(...)`` /
+   ``.compile()`` timed separately. The persistent compilation cache is off.
+2. numba references, written from MODEL.md, not from the JAX code:
+
+   - *plain*: the contract's scheme as a scalar loop. Per RK4 sub-step the voltage
+     is the first-order hold at each stage time, the PI output is evaluated with the
+     play memory of the sub-step start (once per distinct stage time: stages 2 and
+     3 share t + h/2, hence one value), the memory is committed at the sub-step end,
+     and |z| is saturated at |z_ss| after each sub-step. The profile values are
+     runtime arguments (read from the Actuator), not compile-time constants.
+   - *per-interval PI* (labelled): the same loop, but the PI output for all stage
+     times of one sample interval is evaluated with the memory of the interval
+     start and the memory committed once per interval, as the JAX simulator does
+     (exact: the voltage is linear, hence monotone, over an interval).
+   - *17 recordings, prange*: the plain loop over the 17 rows with
+     ``numba.prange`` (information only: what a numba user gets from all cores).
+
+   Both single-recording loops are checked against the JAX output (NRMSE, c = 0).
+3. ``scipy.integrate.solve_ivp`` (LSODA, RK45, Radau; rtol 1e-6, atol 1e-12,
+   max_step = one sample period), right-hand side in plain Python/NumPy (no numba),
+   no analytic Jacobian (LSODA and Radau estimate it by finite differences). Two
+   honest formulations of the hysteresis memory and the saturation:
+
+   - *per interval*: one ``solve_ivp`` call per sample interval. Inside the interval
+     the voltage is linear, so the PI output at time t is exactly
+     ``Σ w_i clip(p_i(t_k), U(t) − r_i, U(t) + r_i)`` with the memory of the interval
+     start; the memory is committed and |z| saturated at the interval end. Every
+     call restarts the integrator (step-size selection, order 1 for LSODA).
+   - *one call*: one ``solve_ivp`` call over the whole trace. With the identity
+     input stage the play memory depends on the voltage alone, so the memory at
+     every sample is tabulated beforehand and Γ(t) is the exact, state-independent
+     function above (continuous in t). No saturation is applied: in continuous time
+     |z| ≤ |z_ss| is invariant (α = 1 at |z_ss| makes ż = 0, and beyond it ż points
+     back), so the projection is only a discrete-time device. Output at the samples
+     comes from the solver's dense output (``t_eval``).
+
+   LSODA runs the whole trace. RK45 and Radau run the whole trace when a one-period
+   pilot projects it to fit ``--scipy-budget`` seconds, otherwise a prefix of whole
+   drive periods that fits, and their time is scaled linearly to the full trace
+   (the drive is periodic; the table says when and from how long a prefix).
+4. Accuracy: NRMSE (RMS difference over the reference's peak-to-peak, c = 0) of each
+   method against a tight reference, the JAX simulator at 16x DEFAULT_SUBSTEPS
+   sub-steps. For scipy prefixes, over the prefix.
+5. Derivatives of q(θ) where θ = (Mp, Dp, Kp, Ms, Ds, rho0, z_ba_forward,
+   z_ba_backward, zba_ratio), put into the Actuator with ``eqx.tree_at``:
+   ``jax.jacfwd`` of the trace (T x 9), again with the 35 PI weights added (T x 44),
+   and ``jax.grad`` of sum((q − q_target)²), q_target being the trace at θ·1.01.
+   All jitted, compiled ahead of time (compile timed), timed interleaved with the
+   plain forward θ → q, and reported as multiples of it. (z_ba_backward has a zero
+   column on a forward drive; it still costs a tangent.)
+6. Memory of the reverse-mode gradient over a 10 s trace, in a fresh subprocess:
+   the compiled executable's ``memory_analysis()`` (temp, argument, output sizes)
+   and the process peak RSS increase (``resource.getrusage``) from before compiling
+   the gradient to after running it; also the run alone (peak reset through
+   ``/proc/self/clear_refs`` where the kernel allows it).
+7. Ratios next to the targets of the issue, each marked PASS or MISS.
+
+The machine may be shared and noisy: the timed variants of a section are run in
+interleaved rounds (rotating order) and medians and minima reported; ``cpu/wall``
+(process CPU time over wall time) shows whether a variant used more than one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import importlib.metadata
+import json
+import math
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+with contextlib.suppress(Exception):
+    jax.config.update("jax_enable_compilation_cache", False)
+
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+from numba import njit, prange  # noqa: E402
+from scipy.integrate import solve_ivp  # noqa: E402
+
+from stickslip_jax.model.profiles import lu2015_slc1720  # noqa: E402
+from stickslip_jax.signals import sawtooth  # noqa: E402
+from stickslip_jax.simulate import DEFAULT_SUBSTEPS, simulate, simulate_batch  # noqa: E402
+
+FS = 25_000.0  # sample rate [Hz]
+DT = 1.0 / FS  # sample period [s]
+AMPLITUDE = 40.0  # [V]
+FREQUENCY = 50.0  # [Hz]
+N_BATCH = 17  # recordings in the batched scan
+REF_FACTOR = 16  # reference sub-steps = REF_FACTOR * DEFAULT_SUBSTEPS
+PERIOD_SAMPLES = round(FS / FREQUENCY)
+SCIPY_TOL = {"rtol": 1e-6, "atol": 1e-12}
+PHYSICAL = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "z_ba_forward", "z_ba_backward", "zba_ratio")
+
+TARGETS = {
+    "batched_per_recording_over_numba": 2.0,
+    "lsoda_over_batched_per_recording": 50.0,
+    "jacfwd_over_forward": 6.0,
+    "grad_over_forward": 6.0,
+    "compile_s": 15.0,
+    "grad_memory_10s_MB": 2000.0,
+}
+
+
+# ---------------------------------------------------------------------------------
+# Parameters, read from the Actuator (never baked into the reference loops)
+# ---------------------------------------------------------------------------------
+def reference_parameters(actuator) -> tuple[tuple[float, ...], np.ndarray, np.ndarray]:
+    """Scalars (Mp, Dp, Kp, Kact2·N, Ms, Ds, F_ext, k_load, rho0, rho1, rho2, z_ba,
+    zba_ratio) for a forward drive, PI thresholds r [V] and weights w [m/V]."""
+    p, s, f, h = actuator.piezo, actuator.slider, actuator.friction, actuator.hysteresis
+    scalars = (
+        p.Mp, p.Dp, p.Kp, p.Kact2 * p.N, s.Ms, s.Ds, s.F_ext, s.k_load,
+        f.rho0, f.rho1, f.rho2, f.z_ba_forward, f.zba_ratio,
+    )
+    return (
+        tuple(float(v) for v in scalars),
+        np.asarray(h.thresholds, dtype=np.float64),
+        np.asarray(h.weights, dtype=np.float64),
+    )
+
+
+# ---------------------------------------------------------------------------------
+# numba references
+# ---------------------------------------------------------------------------------
+@njit(inline="always")
+def _nb_field(x1, v1, x2, v2, z, g, prm):
+    """MODEL.md right-hand side for stroke ``g`` [m]; ``prm`` as reference_parameters."""
+    mp, dp, kp, f_pre, ms, ds, f_ext, k_load, rho0, rho1, rho2, z_ba, ratio = prm
+    zss = z_ba / ratio
+    xdot = v1 - v2
+    alpha = 0.0
+    if xdot * z > 0.0:  # alpha = 0 when sgn(xdot) != sgn(z)
+        az = abs(z)
+        if az >= zss:
+            alpha = 1.0
+        elif az > z_ba:
+            alpha = 0.5 * math.sin(math.pi * (az - 0.5 * (zss + z_ba)) / (zss - z_ba)) + 0.5
+    z_ss = zss if xdot >= 0.0 else -zss  # sign switch; +|z_ss| at xdot = 0
+    zdot = xdot * (1.0 - alpha * z / z_ss)
+    ff = rho0 * z + rho1 * zdot + rho2 * xdot
+    a1 = (kp * (g - x1) - dp * v1 - f_pre - ff) / mp
+    a2 = (ff + f_ext - k_load * x2 - ds * v2) / ms
+    return v1, a1, v2, a2, zdot
+
+
+@njit(inline="always")
+def _nb_pi(p, u, r, w):
+    """Γ = Σ w_i clip(p_i, u − r_i, u + r_i) [m] with memory ``p`` [V]."""
+    s = 0.0
+    for i in range(p.shape[0]):
+        s += w[i] * min(max(p[i], u - r[i]), u + r[i])
+    return s
+
+
+@njit(inline="always")
+def _nb_rk4(x1, v1, x2, v2, z, g0, gm, g1, h, prm):
+    """One RK4 step with the strokes at the sub-step start, middle and end."""
+    hh = 0.5 * h
+    k1 = _nb_field(x1, v1, x2, v2, z, g0, prm)
+    k2 = _nb_field(x1 + hh * k1[0], v1 + hh * k1[1], x2 + hh * k1[2], v2 + hh * k1[3],
+                   z + hh * k1[4], gm, prm)
+    k3 = _nb_field(x1 + hh * k2[0], v1 + hh * k2[1], x2 + hh * k2[2], v2 + hh * k2[3],
+                   z + hh * k2[4], gm, prm)
+    k4 = _nb_field(x1 + h * k3[0], v1 + h * k3[1], x2 + h * k3[2], v2 + h * k3[3],
+                   z + h * k3[4], g1, prm)
+    h6 = h / 6.0
+    x1 += h6 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+    v1 += h6 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+    x2 += h6 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+    v2 += h6 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
+    z += h6 * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4])
+    return x1, v1, x2, v2, z
+
+
+@njit(inline="always")
+def _nb_rest(u0, prm, r, w, p):
+    """Fill the memory ``p`` at rest under ``u0`` and return the rest state."""
+    kp, f_pre, f_ext, rho0 = prm[2], prm[3], prm[6], prm[8]
+    for i in range(r.shape[0]):
+        p[i] = min(max(0.0, u0 - r[i]), u0 + r[i])
+    x1 = _nb_pi(p, u0, r, w) - (f_pre - f_ext) / kp
+    return x1, 0.0, 0.0, 0.0, -f_ext / rho0
+
+
+@njit
+def numba_plain(u, dt, substeps, prm, r, w):
+    """q [m] at the samples of ``u`` [V]: the contract's plain scheme (module doc)."""
+    n = u.shape[0]
+    zss = prm[11] / prm[12]
+    p = np.empty(r.shape[0])
+    x1, v1, x2, v2, z = _nb_rest(u[0], prm, r, w, p)
+    q = np.empty(n)
+    q[0] = x1 + x2
+    h = dt / substeps
+    for k in range(n - 1):
+        ua = u[k]
+        du = u[k + 1] - ua
+        for j in range(substeps):
+            u0 = ua + du * (j / substeps)
+            um = ua + du * ((j + 0.5) / substeps)
+            u1 = ua + du * ((j + 1.0) / substeps)
+            g0 = _nb_pi(p, u0, r, w)
+            gm = _nb_pi(p, um, r, w)
+            g1 = _nb_pi(p, u1, r, w)
+            x1, v1, x2, v2, z = _nb_rk4(x1, v1, x2, v2, z, g0, gm, g1, h, prm)
+            for i in range(p.shape[0]):  # commit the memory at the sub-step end
+                p[i] = min(max(p[i], u1 - r[i]), u1 + r[i])
+            z = min(max(z, -zss), zss)  # saturate |z| at |z_ss|
+        q[k + 1] = x1 + x2
+    return q
+
+
+@njit
+def numba_interval(u, dt, substeps, prm, r, w):
+    """As :func:`numba_plain`, PI per sample interval with one commit (as the JAX code)."""
+    n = u.shape[0]
+    zss = prm[11] / prm[12]
+    p = np.empty(r.shape[0])
+    x1, v1, x2, v2, z = _nb_rest(u[0], prm, r, w, p)
+    q = np.empty(n)
+    q[0] = x1 + x2
+    h = dt / substeps
+    g = np.empty(2 * substeps + 1)  # strokes at fractions m / (2·substeps)
+    for k in range(n - 1):
+        ua = u[k]
+        du = u[k + 1] - ua
+        for m in range(2 * substeps + 1):
+            g[m] = _nb_pi(p, ua + du * (0.5 * m / substeps), r, w)
+        for j in range(substeps):
+            x1, v1, x2, v2, z = _nb_rk4(x1, v1, x2, v2, z, g[2 * j], g[2 * j + 1], g[2 * j + 2],
+                                        h, prm)
+            z = min(max(z, -zss), zss)
+        ub = u[k + 1]
+        for i in range(p.shape[0]):
+            p[i] = min(max(p[i], ub - r[i]), ub + r[i])
+        q[k + 1] = x1 + x2
+    return q
+
+
+@njit(parallel=True)
+def numba_plain_batch(us, dt, substeps, prm, r, w):
+    """:func:`numba_plain` over the rows of ``us``, rows spread over threads."""
+    out = np.empty_like(us)
+    for b in prange(us.shape[0]):
+        out[b] = numba_plain(us[b], dt, substeps, prm, r, w)
+    return out
+
+
+# ---------------------------------------------------------------------------------
+# scipy references
+# ---------------------------------------------------------------------------------
+def _py_field(y, g, prm):
+    """Same right-hand side as :func:`_nb_field`, plain Python floats."""
+    mp, dp, kp, f_pre, ms, ds, f_ext, k_load, rho0, rho1, rho2, z_ba, ratio = prm
+    x1, v1, x2, v2, z = y.tolist()
+    zss = z_ba / ratio
+    xdot = v1 - v2
+    alpha = 0.0
+    if xdot * z > 0.0:
+        az = abs(z)
+        if az >= zss:
+            alpha = 1.0
+        elif az > z_ba:
+            alpha = 0.5 * math.sin(math.pi * (az - 0.5 * (zss + z_ba)) / (zss - z_ba)) + 0.5
+    z_ss = zss if xdot >= 0.0 else -zss
+    zdot = xdot * (1.0 - alpha * z / z_ss)
+    ff = rho0 * z + rho1 * zdot + rho2 * xdot
+    a1 = (kp * (g - x1) - dp * v1 - f_pre - ff) / mp
+    a2 = (ff + f_ext - k_load * x2 - ds * v2) / ms
+    return np.array([v1, a1, v2, a2, zdot])
+
+
+def _py_rest(u0, prm, r, w):
+    p = np.clip(0.0, u0 - r, u0 + r)
+    x1 = float(w @ p) - (prm[3] - prm[6]) / prm[2]
+    return np.array([x1, 0.0, 0.0, 0.0, -prm[6] / prm[8]]), p
+
+
+def scipy_per_interval(u, dt, prm, r, w, method):
+    """One solve_ivp call per sample interval (module doc). Returns (q, nfev)."""
+    zss = prm[11] / prm[12]
+    y, p = _py_rest(u[0], prm, r, w)
+    q = np.empty(len(u))
+    q[0] = y[0] + y[2]
+    nfev = 0
+    for k in range(len(u) - 1):
+        ua, du = u[k], u[k + 1] - u[k]
+
+        def rhs(s, yy, ua=ua, du=du, p=p):
+            uu = ua + du * (s / dt)
+            return _py_field(yy, float(w @ np.minimum(np.maximum(p, uu - r), uu + r)), prm)
+
+        sol = solve_ivp(rhs, (0.0, dt), y, method=method, max_step=dt, **SCIPY_TOL)
+        if not sol.success:
+            raise RuntimeError(f"{method} failed in interval {k}: {sol.message}")
+        nfev += sol.nfev
+        y = sol.y[:, -1].copy()
+        y[4] = min(max(y[4], -zss), zss)
+        p = np.minimum(np.maximum(p, u[k + 1] - r), u[k + 1] + r)
+        q[k + 1] = y[0] + y[2]
+    return q, nfev
+
+
+def scipy_one_call(u, dt, prm, r, w, method):
+    """One solve_ivp call with a tabulated PI memory (module doc). Returns (q, nfev)."""
+    n = len(u)
+    y0, p = _py_rest(u[0], prm, r, w)
+    memory = np.empty((n, len(r)))
+    for k in range(n):
+        p = np.minimum(np.maximum(p, u[k] - r), u[k] + r)
+        memory[k] = p
+
+    def rhs(t, yy):
+        s = t / dt
+        k = min(max(int(s), 0), n - 2)
+        uu = u[k] + (u[k + 1] - u[k]) * (s - k)
+        pk = memory[k]
+        return _py_field(yy, float(w @ np.minimum(np.maximum(pk, uu - r), uu + r)), prm)
+
+    t_eval = np.arange(n) * dt
+    sol = solve_ivp(rhs, (0.0, t_eval[-1]), y0, method=method, t_eval=t_eval, max_step=dt,
+                    **SCIPY_TOL)
+    if not sol.success:
+        raise RuntimeError(f"{method} failed: {sol.message}")
+    return sol.y[0] + sol.y[2], sol.nfev
+
+
+# ---------------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------------
+def nrmse(q, ref) -> float:
+    """RMS of q − ref over the peak-to-peak of ref (MODEL.md "Fit quality", c = 0)."""
+    q, ref = np.asarray(q), np.asarray(ref)
+    return float(np.sqrt(np.mean((q - ref) ** 2)) / np.ptp(ref))
+
+
+def _timed(fn):
+    gc.collect()
+    c0, t0 = time.process_time(), time.perf_counter()
+    out = jax.block_until_ready(fn())
+    wall = time.perf_counter() - t0
+    return wall, time.process_time() - c0, out
+
+
+def _stats(walls, cpus=None) -> dict:
+    walls = [float(x) for x in walls]
+    out = {"median_s": float(np.median(walls)), "min_s": min(walls), "runs_s": walls}
+    if cpus:
+        out["cpu_over_wall"] = float(np.sum(cpus) / np.sum(walls))
+    return out
+
+
+def interleaved(variants: dict, repeats: int) -> tuple[dict, dict]:
+    """Time each callable ``repeats`` times in rotating interleaved rounds, after a warm-up.
+
+    Returns ({name: stats}, {name: last output}).
+    """
+    names = list(variants)
+    for fn in variants.values():  # one untimed call each (compiles what is not yet)
+        jax.block_until_ready(fn())
+    walls = {n: [] for n in names}
+    cpus = {n: [] for n in names}
+    outs = {}
+    for rep in range(repeats):
+        shift = rep % len(names)
+        for name in names[shift:] + names[:shift]:
+            w_, c_, outs[name] = _timed(variants[name])
+            walls[name].append(w_)
+            cpus[name].append(c_)
+    return {n: _stats(walls[n], cpus[n]) for n in names}, outs
+
+
+def aot_compile(fn, *args) -> tuple[object, dict]:
+    """``jax.jit(fn).lower(*args).compile()`` from cold caches; times each part."""
+    jax.clear_caches()
+    t0 = time.perf_counter()
+    lowered = jax.jit(fn).lower(*args)
+    t1 = time.perf_counter()
+    compiled = lowered.compile()
+    t2 = time.perf_counter()
+    return compiled, {"lower_s": t1 - t0, "compile_s": t2 - t1, "total_s": t2 - t0}
+
+
+def parameter_function(actuator, substeps, *, with_pi: bool):
+    """θ → q for the physical parameters (and the PI weights when ``with_pi``)."""
+
+    def leaves(a):
+        out = (a.piezo.Mp, a.piezo.Dp, a.piezo.Kp, a.slider.Ms, a.slider.Ds, a.friction.rho0,
+               a.friction.z_ba_forward, a.friction.z_ba_backward, a.friction.zba_ratio)
+        return out + (a.hysteresis.weights,) if with_pi else out
+
+    theta0 = jnp.concatenate([jnp.ravel(x) for x in leaves(actuator)])
+
+    def q_of(theta, u):
+        values = tuple(theta[i] for i in range(len(PHYSICAL)))
+        if with_pi:
+            values = values + (theta[len(PHYSICAL):],)
+        return simulate(eqx.tree_at(leaves, actuator, values), u, dt=DT, substeps=substeps)
+
+    return q_of, theta0
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+
+
+def _proc_status_mb(key: str) -> float | None:
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return float(line.split()[1]) / 1024.0
+    return None
+
+
+# ---------------------------------------------------------------------------------
+# 6. memory of the gradient, in a fresh process
+# ---------------------------------------------------------------------------------
+def memory_child(duration_s: float, substeps: int) -> dict:
+    """Compile and run the reverse-mode gradient over ``duration_s`` [s]; memory figures.
+
+    getrusage's ``ru_maxrss`` is the peak over the process's life (it also inherits
+    the spawning process's RSS at ``exec``, which is why the parent starts this child
+    before it grows). Phase 1: peak increase from before compiling to after the first
+    run. Phase 2: the kernel's peak (VmHWM) is reset and a second run measured alone.
+    """
+    start = {"ru_maxrss_MB": peak_rss_mb(), "VmRSS_MB": _proc_status_mb("VmRSS")}
+    actuator = lu2015_slc1720()
+    _, u = sawtooth(AMPLITUDE, FREQUENCY, duration_s=duration_s, sample_rate_Hz=FS)
+    u = jnp.asarray(u)
+    q_of, theta0 = parameter_function(actuator, substeps, with_pi=False)
+    target = jax.block_until_ready(jax.jit(q_of)(theta0 * 1.01, u))
+
+    def loss(theta, u, target):
+        return jnp.sum((q_of(theta, u) - target) ** 2)
+
+    gc.collect()
+    rss_before = peak_rss_mb()
+    vmrss_before = _proc_status_mb("VmRSS")
+    compiled, ctime = aot_compile(jax.grad(loss), theta0, u, target)
+    rss_compiled = peak_rss_mb()
+    ma = compiled.memory_analysis()
+    analysis = {}
+    for key in ("temp_size_in_bytes", "argument_size_in_bytes", "output_size_in_bytes",
+                "alias_size_in_bytes", "generated_code_size_in_bytes"):
+        value = getattr(ma, key, None)
+        if value is not None:
+            analysis[key.replace("_in_bytes", "_MB")] = value / 1e6
+    analysis["temp+argument+output_MB"] = sum(
+        analysis.get(k, 0.0) for k in ("temp_size_MB", "argument_size_MB", "output_size_MB")
+    )
+    t0 = time.perf_counter()
+    grad = jax.block_until_ready(compiled(theta0, u, target))
+    run_s = time.perf_counter() - t0
+    rss_after = peak_rss_mb()
+    del grad
+    gc.collect()
+    run_only = None
+    with contextlib.suppress(OSError):  # reset VmHWM to the current RSS (Linux >= 4.0)
+        Path("/proc/self/clear_refs").write_text("5")
+        rss_now = _proc_status_mb("VmRSS")
+        grad = jax.block_until_ready(compiled(theta0, u, target))
+        hwm = _proc_status_mb("VmHWM")
+        if hwm is not None and rss_now is not None:
+            run_only = hwm - rss_now
+    return {
+        "duration_s": duration_s,
+        "samples": int(u.shape[0]),
+        "compile": ctime,
+        "first_run_s": run_s,
+        "memory_analysis": analysis,
+        "process_start": start,
+        "ru_maxrss_before_compile_MB": rss_before,
+        "VmRSS_before_compile_MB": vmrss_before,
+        "peak_rss_increase_MB": rss_after - rss_before,
+        "peak_rss_increase_compile_MB": rss_compiled - rss_before,
+        "peak_rss_run_only_MB": run_only,
+        "grad_finite": bool(np.all(np.isfinite(np.asarray(grad)))),
+    }
+
+
+def run_memory_child(duration_s: float, substeps: int) -> dict:
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--memory-child", str(duration_s),
+           "--substeps", str(substeps)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        return {"error": proc.stderr[-2000:]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+# ---------------------------------------------------------------------------------
+# main
+# ---------------------------------------------------------------------------------
+def fmt_s(x: float | None) -> str:
+    if x is None or not math.isfinite(x):
+        return "-"
+    if x >= 100:
+        return f"{x:.0f} s"
+    if x >= 1:
+        return f"{x:.2f} s"
+    return f"{1e3 * x:.1f} ms"
+
+
+def run(args) -> dict:
+    quick = args.quick
+    duration = 0.2 if quick else 1.0
+    repeats = args.repeats or (2 if quick else 7)
+    scipy_repeats = args.scipy_repeats or (1 if quick else 3)
+    substeps = args.substeps
+    mem_duration = 1.0 if quick else 10.0
+    actuator = lu2015_slc1720()
+    _, u_np = sawtooth(AMPLITUDE, FREQUENCY, duration_s=duration, sample_rate_Hz=FS)
+    n = len(u_np)
+    u = jnp.asarray(u_np)
+    ubatch_np = np.tile(u_np, (N_BATCH, 1))
+    ubatch = jnp.asarray(ubatch_np)
+    prm, r, w = reference_parameters(actuator)
+    res: dict = {
+        "config": {
+            "trace": f"{AMPLITUDE:g} V {FREQUENCY:g} Hz forward sawtooth, lu2015_slc1720",
+            "duration_s": duration, "sample_rate_Hz": FS, "samples": n,
+            "substeps": substeps, "default_substeps": DEFAULT_SUBSTEPS,
+            "reference_substeps": REF_FACTOR * DEFAULT_SUBSTEPS, "batch_rows": N_BATCH,
+            "repeats": repeats, "scipy_repeats": scipy_repeats, "quick": quick,
+            "scipy_budget_s": args.scipy_budget,
+        },
+        "environment": {
+            "python": platform.python_version(), "platform": platform.platform(),
+            "jax": jax.__version__, "jaxlib": importlib.metadata.version("jaxlib"),
+            "equinox": eqx.__version__, "numba": numba.__version__,
+            "numba_threads": numba.get_num_threads(), "scipy": scipy.__version__,
+            "numpy": np.__version__, "cpu_count": os.cpu_count(),
+            "cpu_affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+            else None, "jax_devices": [str(d) for d in jax.devices()],
+            "XLA_FLAGS": os.environ.get("XLA_FLAGS"),
+        },
+    }
+    log = print if args.verbose else (lambda *a, **k: None)
+
+    # --- 6. memory, first: the child inherits this process's RSS as its ru_maxrss floor
+    log("gradient memory (subprocess) ...")
+    mem = run_memory_child(mem_duration, substeps)
+
+    # --- reference ---------------------------------------------------------------
+    log("reference ...")
+    q_ref = np.asarray(simulate(actuator, u, dt=DT, substeps=REF_FACTOR * DEFAULT_SUBSTEPS))
+    q_half = np.asarray(simulate(actuator, u, dt=DT, substeps=REF_FACTOR * DEFAULT_SUBSTEPS // 2))
+    res["reference_check_nrmse_half_substeps"] = nrmse(q_half, q_ref)
+
+    # --- 1. JAX compile ----------------------------------------------------------
+    log("JAX compile ...")
+    comp = {}
+    jax.clear_caches()
+    w_first, _, _ = _timed(lambda: simulate(actuator, u, dt=DT, substeps=substeps))
+    steady = [_timed(lambda: simulate(actuator, u, dt=DT, substeps=substeps))[0]
+              for _ in range(3)]
+    comp["single_first_minus_steady_s"] = w_first - float(np.median(steady))
+    jax.clear_caches()
+    w_first, _, _ = _timed(lambda: simulate_batch(actuator, ubatch, dt=DT, substeps=substeps))
+    steady = [_timed(lambda: simulate_batch(actuator, ubatch, dt=DT, substeps=substeps))[0]
+              for _ in range(2)]
+    comp["batch_first_minus_steady_s"] = w_first - float(np.median(steady))
+    _, comp["single_aot"] = aot_compile(
+        lambda a, v: simulate(a, v, dt=DT, substeps=substeps), actuator, u)
+    _, comp["batch_aot"] = aot_compile(
+        lambda a, v: simulate_batch(a, v, dt=DT, substeps=substeps), actuator, ubatch)
+    # warm the public entry points again (the AOT runs cleared the caches)
+    jax.block_until_ready(simulate(actuator, u, dt=DT, substeps=substeps))
+    jax.block_until_ready(simulate_batch(actuator, ubatch, dt=DT, substeps=substeps))
+
+    # --- numba compile -----------------------------------------------------------
+    log("numba compile ...")
+    uref = np.ascontiguousarray(u_np[: 2 * PERIOD_SAMPLES])
+    for name, fn, data in (("plain", numba_plain, uref), ("interval", numba_interval, uref),
+                           ("batch_prange", numba_plain_batch, ubatch_np[:, :100].copy())):
+        t0 = time.perf_counter()
+        fn(data, DT, substeps, prm, r, w)
+        comp[f"numba_{name}_first_call_s"] = time.perf_counter() - t0
+    res["compile"] = comp
+
+    # --- 1-2. forward timings, interleaved -----------------------------------------
+    log("forward timings ...")
+    fwd_variants = {
+        "jax_single": lambda: simulate(actuator, u, dt=DT, substeps=substeps),
+        "jax_single_2x": lambda: simulate(actuator, u, dt=DT, substeps=2 * substeps),
+        "jax_single_4x": lambda: simulate(actuator, u, dt=DT, substeps=4 * substeps),
+        "jax_batch17": lambda: simulate_batch(actuator, ubatch, dt=DT, substeps=substeps),
+        "numba_plain": lambda: numba_plain(u_np, DT, substeps, prm, r, w),
+        "numba_interval": lambda: numba_interval(u_np, DT, substeps, prm, r, w),
+        "numba_plain_batch17_prange": lambda: numba_plain_batch(ubatch_np, DT, substeps, prm,
+                                                                r, w),
+    }
+    fwd, outs = interleaved(fwd_variants, repeats)
+    for name in ("jax_batch17", "numba_plain_batch17_prange"):
+        fwd[name]["per_recording_median_s"] = fwd[name]["median_s"] / N_BATCH
+        fwd[name]["per_recording_min_s"] = fwd[name]["min_s"] / N_BATCH
+    for name in ("jax_single", "jax_single_2x", "jax_single_4x", "numba_plain",
+                 "numba_interval"):
+        fwd[name]["per_recording_median_s"] = fwd[name]["median_s"]
+        fwd[name]["per_recording_min_s"] = fwd[name]["min_s"]
+    q_jax = np.asarray(outs["jax_single"])
+    accuracy = {
+        "jax_single": nrmse(q_jax, q_ref),
+        "jax_single_2x": nrmse(outs["jax_single_2x"], q_ref),
+        "jax_single_4x": nrmse(outs["jax_single_4x"], q_ref),
+        "jax_batch17": max(nrmse(row, q_ref) for row in np.asarray(outs["jax_batch17"])),
+        "numba_plain": nrmse(outs["numba_plain"], q_ref),
+        "numba_interval": nrmse(outs["numba_interval"], q_ref),
+        "numba_plain_batch17_prange": max(
+            nrmse(row, q_ref) for row in outs["numba_plain_batch17_prange"]),
+    }
+    res["consistency_nrmse_vs_jax"] = {
+        "numba_plain": nrmse(outs["numba_plain"], q_jax),
+        "numba_interval": nrmse(outs["numba_interval"], q_jax),
+        "jax_batch_row0": nrmse(np.asarray(outs["jax_batch17"])[0], q_jax),
+    }
+
+    # --- 3. scipy --------------------------------------------------------------------
+    log("scipy ...")
+    scipy_res = {}
+    runs = {}
+    for method in ("LSODA", "RK45", "Radau"):
+        for form, fn in (("one_call", scipy_one_call), ("per_interval", scipy_per_interval)):
+            name = f"scipy_{method}_{form}"
+            pilot_n = min(n, PERIOD_SAMPLES + 1)
+            t0 = time.perf_counter()
+            fn(u_np[:pilot_n], DT, prm, r, w, method)
+            pilot = time.perf_counter() - t0
+            projected = pilot * (n - 1) / (pilot_n - 1)
+            if method == "LSODA" or projected <= args.scipy_budget:
+                m = n
+            else:
+                per_period = pilot * PERIOD_SAMPLES / (pilot_n - 1)
+                periods = max(1, int(args.scipy_budget / per_period))
+                m = min(n, periods * PERIOD_SAMPLES + 1)
+            runs[name] = (fn, method, m)
+            scipy_res[name] = {"method": method, "formulation": form,
+                               "simulated_s": (m - 1) / FS, "samples": m,
+                               "pilot_s": pilot, "scale_to_full": (n - 1) / (m - 1)}
+    walls = {k: [] for k in runs}
+    for rep in range(scipy_repeats):
+        names = list(runs)
+        shift = rep % len(names)
+        for name in names[shift:] + names[:shift]:
+            fn, method, m = runs[name]
+            wall, _, (q, nfev) = _timed(lambda fn=fn, method=method, m=m:
+                                        fn(u_np[:m], DT, prm, r, w, method))
+            walls[name].append(wall)
+            scipy_res[name]["nfev"] = int(nfev)
+            scipy_res[name]["nrmse_vs_ref"] = nrmse(q, q_ref[:m])
+    for name, entry in scipy_res.items():
+        scale = entry["scale_to_full"]
+        entry["measured"] = _stats(walls[name])
+        entry["median_s"] = entry["measured"]["median_s"] * scale
+        entry["min_s"] = entry["measured"]["min_s"] * scale
+        entry["per_recording_median_s"] = entry["median_s"]
+        entry["per_recording_min_s"] = entry["min_s"]
+        accuracy[name] = entry["nrmse_vs_ref"]
+    res["forward"] = {**fwd, **scipy_res}
+    res["accuracy_nrmse_vs_reference"] = accuracy
+
+    # --- 5. derivatives -----------------------------------------------------------------
+    log("derivatives ...")
+    q_phys, theta_phys = parameter_function(actuator, substeps, with_pi=False)
+    q_all, theta_all = parameter_function(actuator, substeps, with_pi=True)
+    target = jax.block_until_ready(jax.jit(q_phys)(theta_phys * 1.01, u))
+
+    def loss(theta, u, target):
+        return jnp.sum((q_phys(theta, u) - target) ** 2)
+
+    deriv_comp = {}
+    c_fwd, deriv_comp["forward"] = aot_compile(q_phys, theta_phys, u)
+    c_jphys, deriv_comp["jacfwd_phys"] = aot_compile(jax.jacfwd(q_phys), theta_phys, u)
+    c_jall, deriv_comp["jacfwd_phys_pi"] = aot_compile(jax.jacfwd(q_all), theta_all, u)
+    c_grad, deriv_comp["grad_phys"] = aot_compile(jax.grad(loss), theta_phys, u, target)
+    c_gfwd, deriv_comp["grad_phys_forward_mode"] = aot_compile(
+        jax.jacfwd(loss), theta_phys, u, target)
+    dvariants = {
+        "forward": lambda: c_fwd(theta_phys, u),
+        "jacfwd_phys": lambda: c_jphys(theta_phys, u),
+        "jacfwd_phys_pi": lambda: c_jall(theta_all, u),
+        "grad_phys": lambda: c_grad(theta_phys, u, target),
+        "grad_phys_forward_mode": lambda: c_gfwd(theta_phys, u, target),
+    }
+    deriv, douts = interleaved(dvariants, repeats)
+    base = deriv["forward"]["median_s"]
+    for name, entry in deriv.items():
+        entry["over_forward"] = entry["median_s"] / base
+        entry["compile"] = deriv_comp[name]
+    deriv["jacfwd_phys"]["shape"] = list(np.shape(douts["jacfwd_phys"]))
+    deriv["jacfwd_phys_pi"]["shape"] = list(np.shape(douts["jacfwd_phys_pi"]))
+    deriv["grad_phys"]["value"] = np.asarray(douts["grad_phys"]).tolist()
+    deriv["grad_phys"]["finite"] = bool(np.all(np.isfinite(np.asarray(douts["grad_phys"]))))
+    g_rev = np.asarray(douts["grad_phys"])
+    g_fwd = np.asarray(douts["grad_phys_forward_mode"])
+    deriv["grad_phys_forward_mode"]["max_rel_diff_vs_grad"] = float(
+        np.max(np.abs(g_fwd - g_rev)) / np.max(np.abs(g_rev)))
+    deriv["parameters"] = list(PHYSICAL)
+    res["derivatives"] = deriv
+
+    # --- 6. memory (run above, first) -------------------------------------------------------
+    if "error" not in mem:
+        scale = 10.0 / mem_duration
+        mem["scale_to_10s"] = scale
+        mem["xla_total_10s_MB"] = mem["memory_analysis"]["temp+argument+output_MB"] * scale
+        if scale == 1.0:
+            mem["rss_increase_10s_MB"] = mem["peak_rss_increase_MB"]
+        else:  # compile memory does not grow with the trace; the run's share does
+            mem["rss_increase_10s_MB"] = (mem["peak_rss_increase_compile_MB"]
+                                          + scale * (mem["peak_rss_run_only_MB"] or 0.0))
+    res["gradient_memory"] = mem
+
+    # --- 7. ratios and targets ------------------------------------------------------------
+    f = res["forward"]
+    all_compiles = {
+        "simulate (first call - steady)": comp["single_first_minus_steady_s"],
+        "simulate_batch (first call - steady)": comp["batch_first_minus_steady_s"],
+        "simulate (lower+compile)": comp["single_aot"]["total_s"],
+        "simulate_batch (lower+compile)": comp["batch_aot"]["total_s"],
+        "jacfwd phys (lower+compile)": deriv_comp["jacfwd_phys"]["total_s"],
+        "jacfwd phys+PI (lower+compile)": deriv_comp["jacfwd_phys_pi"]["total_s"],
+        "grad phys (lower+compile)": deriv_comp["grad_phys"]["total_s"],
+    }
+    if "compile" in mem:
+        all_compiles[f"grad phys {mem_duration:g} s trace (lower+compile)"] = \
+            mem["compile"]["total_s"]
+    worst_compile = max(all_compiles.items(), key=lambda kv: kv[1])
+    mem_10s = (max(mem["xla_total_10s_MB"], mem["rss_increase_10s_MB"])
+               if "error" not in mem else float("nan"))
+
+    def per_rec(key, stat):
+        if key == "lsoda_best":
+            return min(per_rec("scipy_LSODA_one_call", stat),
+                       per_rec("scipy_LSODA_per_interval", stat))
+        if key in deriv:
+            return deriv[key][f"{stat}_s"]
+        return f[key][f"per_recording_{stat}_s"]
+
+    def ratio(name, num, den, target=None, le=True, info=""):
+        value = per_rec(num, "median") / per_rec(den, "median")
+        out = {"name": name, "value": value, "value_of_minima": per_rec(num, "min")
+               / per_rec(den, "min"), "info": info}
+        if target is not None:
+            ok = value <= target if le else value >= target
+            out.update(target=target, target_op="<=" if le else ">=",
+                       status="PASS" if ok else "MISS")
+        return out
+
+    def limit(name, value, target, info):
+        return {"name": name, "value": value, "target": target, "target_op": "<=",
+                "status": "PASS" if value <= target else "MISS", "info": info}
+
+    ratios = [
+        ratio("JAX batched per recording / numba plain", "jax_batch17", "numba_plain",
+              TARGETS["batched_per_recording_over_numba"]),
+        ratio("JAX single / numba plain", "jax_single", "numba_plain"),
+        ratio("JAX batched per recording / numba per-interval PI", "jax_batch17",
+              "numba_interval"),
+        ratio("JAX batched per rec. / numba 17 rec. prange per rec.", "jax_batch17",
+              "numba_plain_batch17_prange"),
+        ratio("LSODA (faster formulation) / JAX batched per recording", "lsoda_best",
+              "jax_batch17", TARGETS["lsoda_over_batched_per_recording"], le=False),
+        ratio("LSODA one call / JAX batched per recording", "scipy_LSODA_one_call",
+              "jax_batch17"),
+        ratio("LSODA per interval / JAX batched per recording", "scipy_LSODA_per_interval",
+              "jax_batch17"),
+        ratio("LSODA (faster formulation) / JAX single", "lsoda_best", "jax_single"),
+        ratio("jacfwd (9 physical) / forward", "jacfwd_phys", "forward",
+              TARGETS["jacfwd_over_forward"]),
+        ratio("jacfwd (9 physical + 35 PI weights) / forward", "jacfwd_phys_pi", "forward"),
+        ratio("grad (9 physical, jax.grad) / forward", "grad_phys", "forward",
+              TARGETS["grad_over_forward"]),
+        ratio("same gradient by forward mode (jacfwd of loss) / fwd", "grad_phys_forward_mode",
+              "forward"),
+        limit("worst compile time [s]", worst_compile[1], TARGETS["compile_s"],
+              worst_compile[0]),
+        limit("gradient memory, 10 s trace [MB]", mem_10s, TARGETS["grad_memory_10s_MB"],
+              "max(XLA temp+arg+out, peak RSS increase)"
+              + ("" if mem_duration == 10.0 else f"; {mem_duration:g} s trace: XLA and run "
+                 f"RSS scaled x{10.0 / mem_duration:g}")),
+    ]
+    res["compile_all_s"] = all_compiles
+    res["ratios"] = ratios
+    return res
+
+
+def print_report(res: dict) -> None:
+    c, e, f = res["config"], res["environment"], res["forward"]
+    acc = res["accuracy_nrmse_vs_reference"]
+    print(f"stickslip_jax simulator benchmark: {c['duration_s']:g} s at {c['sample_rate_Hz']/1e3:g}"
+          f" kHz ({c['samples']} samples), {c['trace']}, RK4 {c['substeps']} sub-steps"
+          + ("  [QUICK smoke run: short trace, few repeats]" if c["quick"] else ""))
+    print(f"machine: {e['cpu_count']} CPUs ({e['cpu_affinity']} usable), {e['platform']}; "
+          f"jax {e['jax']}, numba {e['numba']} ({e['numba_threads']} threads), scipy "
+          f"{e['scipy']}; medians of {c['repeats']} interleaved runs (scipy: "
+          f"{c['scipy_repeats']})")
+    print(f"reference for NRMSE: JAX simulator at {c['reference_substeps']} sub-steps (its "
+          f"half-step version differs by NRMSE {res['reference_check_nrmse_half_substeps']:.1e}"
+          ": figures near that are reference-limited)\n")
+    hdr = (f"{'forward simulation':54s} {'median':>9s} {'min':>9s} {'per rec.':>9s} "
+           f"{'cpu/wall':>8s} {'NRMSE':>8s}  note")
+    print(hdr)
+    print("-" * len(hdr))
+    labels = {
+        "jax_single": "JAX simulate, 1 recording",
+        "jax_single_2x": f"JAX simulate, 1 recording, {2 * c['substeps']} sub-steps (info)",
+        "jax_single_4x": f"JAX simulate, 1 recording, {4 * c['substeps']} sub-steps (info)",
+        "jax_batch17": f"JAX simulate_batch, {c['batch_rows']} recordings",
+        "numba_plain": "numba plain loop (contract scheme)",
+        "numba_interval": "numba, per-interval PI (as the JAX code)",
+        "numba_plain_batch17_prange": f"numba plain, {c['batch_rows']} recordings, prange",
+    }
+    for key, entry in f.items():
+        label = labels.get(key)
+        note = ""
+        if label is None:
+            label = f"scipy {entry['method']} ({entry['formulation'].replace('_', ' ')})"
+            note = f"nfev {entry['nfev']}"
+            if entry["scale_to_full"] > 1.0 + 1e-9:
+                note += (f"; timed on {entry['simulated_s']:g} s prefix, scaled x"
+                         f"{entry['scale_to_full']:.3g}, NRMSE on prefix")
+        cw = entry.get("cpu_over_wall")
+        print(f"{label:54s} {fmt_s(entry['median_s']):>9s} {fmt_s(entry['min_s']):>9s} "
+              f"{fmt_s(entry['per_recording_median_s']):>9s} "
+              f"{(f'{cw:.2f}' if cw else '-'):>8s} {acc[key]:8.1e}  {note}")
+    cons = res["consistency_nrmse_vs_jax"]
+    print(f"\nnumba vs JAX (same sub-steps), NRMSE: plain {cons['numba_plain']:.1e}, "
+          f"per-interval {cons['numba_interval']:.1e}; JAX batch row 0 vs single "
+          f"{cons['jax_batch_row0']:.1e}")
+
+    comp = res["compile"]
+    print("\ncompile / first call")
+    print(f"  simulate:        first call - steady {fmt_s(comp['single_first_minus_steady_s'])}; "
+          f"lower {fmt_s(comp['single_aot']['lower_s'])} + compile "
+          f"{fmt_s(comp['single_aot']['compile_s'])}")
+    print(f"  simulate_batch:  first call - steady {fmt_s(comp['batch_first_minus_steady_s'])}; "
+          f"lower {fmt_s(comp['batch_aot']['lower_s'])} + compile "
+          f"{fmt_s(comp['batch_aot']['compile_s'])}")
+    print(f"  numba first call (compile + 2 periods): plain "
+          f"{fmt_s(comp['numba_plain_first_call_s'])}, per-interval "
+          f"{fmt_s(comp['numba_interval_first_call_s'])}, prange "
+          f"{fmt_s(comp['numba_batch_prange_first_call_s'])}")
+
+    d = res["derivatives"]
+    hdr = (f"{'derivatives (θ → q, jitted)':54s} {'median':>9s} {'min':>9s} {'x fwd':>9s} "
+           f"{'cpu/wall':>8s} {'compile':>8s}")
+    print("\n" + hdr)
+    print("-" * len(hdr))
+    dl = {"forward": "forward q(θ)", "jacfwd_phys": "jacfwd, 9 physical parameters",
+          "jacfwd_phys_pi": "jacfwd, 9 physical + 35 PI weights",
+          "grad_phys": "grad of sum((q - target)^2), 9 physical",
+          "grad_phys_forward_mode": "same gradient by jacfwd(loss) (info, forward mode)"}
+    for key, label in dl.items():
+        entry = d[key]
+        print(f"{label:54s} {fmt_s(entry['median_s']):>9s} {fmt_s(entry['min_s']):>9s} "
+              f"{entry['over_forward']:9.2f} {entry['cpu_over_wall']:8.2f} "
+              f"{fmt_s(entry['compile']['total_s']):>8s}")
+
+    m = res["gradient_memory"]
+    print("\ngradient memory (fresh process)")
+    if "error" in m:
+        print("  FAILED: " + m["error"].strip().splitlines()[-1])
+    else:
+        ma = m["memory_analysis"]
+        run_only = m["peak_rss_run_only_MB"]
+        print(f"  {m['duration_s']:g} s trace ({m['samples']} samples): XLA temp "
+              f"{ma.get('temp_size_MB', float('nan')):.1f} MB, arguments "
+              f"{ma.get('argument_size_MB', float('nan')):.1f} MB, output "
+              f"{ma.get('output_size_MB', float('nan')):.3f} MB; peak RSS increase "
+              f"{m['peak_rss_increase_MB']:.0f} MB (compile alone "
+              f"{m['peak_rss_increase_compile_MB']:.0f} MB"
+              + (f", run alone {run_only:.0f} MB" if run_only is not None else "")
+              + f"); compile {fmt_s(m['compile']['total_s'])}, run {fmt_s(m['first_run_s'])}")
+
+    hdr = f"{'ratio':56s} {'medians':>9s} {'minima':>9s} {'target':>9s}  status"
+    print("\n" + hdr)
+    print("-" * len(hdr))
+    for r_ in res["ratios"]:
+        tgt = f"{r_['target_op']} {r_['target']:g}" if "target" in r_ else ""
+        vmin = f"{r_['value_of_minima']:9.2f}" if "value_of_minima" in r_ else f"{'':9s}"
+        info = f"  ({r_['info']})" if r_.get("info") else ""
+        print(f"{r_['name']:56s} {r_['value']:9.2f} {vmin} {tgt:>9s}  {r_.get('status', '')}"
+              f"{info}")
+    if c["quick"]:
+        print("\n(quick run: figures are indicative only; run without --quick for the real "
+              "comparison)")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", type=Path, help="write all results to this JSON file")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke run: 0.2 s trace, 2 repeats, 1 s memory trace")
+    ap.add_argument("--substeps", type=int, default=DEFAULT_SUBSTEPS,
+                    help=f"RK4 sub-steps per sample (default {DEFAULT_SUBSTEPS})")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help="timed repeats per variant (default 7, quick 2)")
+    ap.add_argument("--scipy-repeats", type=int, default=None,
+                    help="timed repeats per scipy variant (default 3, quick 1)")
+    ap.add_argument("--scipy-budget", type=float, default=8.0,
+                    help="seconds per RK45/Radau run before a prefix is used (default 8)")
+    ap.add_argument("--verbose", action="store_true", help="print progress")
+    ap.add_argument("--memory-child", type=float, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.memory_child is not None:
+        print(json.dumps(memory_child(args.memory_child, args.substeps)))
+        return 0
+    res = run(args)
+    print_report(res)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(res, indent=2))
+        print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,145 @@
+"""Derivatives of the simulator with respect to the physical parameters.
+
+Parameters are perturbed multiplicatively, p = p0·(1 + δ), so every Jacobian column
+is p·∂q/∂p [m] and one relative finite-difference step (δ = 1e-6, central) suits all
+of them. The trace: default profile, 22 V forward sawtooth at 200 Hz, 12 ms (300
+samples). It sticks at the samples (max |z| = 0.39 µm there) but the flyback strains
+the contact a little past z_ba = 0.40 µm between samples, so α's smooth sine ramp
+is active and q depends smoothly on z_ba; |z| stays below |z_ss| = 0.60 µm, so the
+saturation never switches. Measured: jacfwd vs central differences agree to
+5e-9 - 5e-8 (relative, norm over the trace) for every parameter; reverse-mode grad
+of a mean-square loss vs forward mode to 1e-14 and vs central differences to ≤ 2e-7.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import stickslip_jax as ss
+
+DT = 4e-5
+NAMES = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "z_ba")
+FD_STEP = 1e-6
+
+
+def _where(a):
+    return (a.piezo.Mp, a.piezo.Dp, a.piezo.Kp, a.slider.Ms, a.slider.Ds, a.friction.rho0,
+            a.friction.z_ba_forward)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    base = ss.lu2015_slc1720()
+    p0 = jnp.stack(_where(base))
+    w0 = base.hysteresis.weights
+    u = jnp.asarray(ss.sawtooth(22.0, 200.0, duration_s=0.012)[1])
+    u_scan = jnp.asarray(ss.sawtooth(15.0, 200.0, duration_s=0.012)[1])
+
+    def actuator(delta, delta_w):
+        a = eqx.tree_at(_where, base, tuple(p0 * (1.0 + delta)))
+        return eqx.tree_at(lambda a: a.hysteresis.weights, a, w0 * (1.0 + delta_w))
+
+    def q_of(delta, delta_w=None, voltage=u):
+        if delta_w is None:
+            delta_w = jnp.zeros_like(w0)
+        return ss.simulate(actuator(delta, delta_w), voltage, dt=DT)
+
+    zero = jnp.zeros(len(NAMES))
+    jac = np.asarray(jax.jacfwd(q_of)(zero))
+    return {"q_of": q_of, "zero": zero, "w0": w0, "jac": jac, "u": u, "u_scan": u_scan}
+
+
+def _central(fun, n, i, h=FD_STEP):
+    e = np.zeros(n)
+    e[i] = h
+    return (np.asarray(fun(jnp.asarray(e))) - np.asarray(fun(jnp.asarray(-e)))) / (2 * h)
+
+
+def test_jacfwd_matches_central_differences(setup):
+    q_of, jac = setup["q_of"], setup["jac"]
+    assert jac.shape == (300, len(NAMES))
+    for i, name in enumerate(NAMES):
+        fd = _central(q_of, len(NAMES), i)
+        err = np.linalg.norm(fd - jac[:, i]) / np.linalg.norm(jac[:, i])
+        assert err < 1e-6, (name, err)
+        # Every column matters: p·∂q/∂p is 0.3-1.8 µm (norm over 300 samples).
+        assert np.linalg.norm(jac[:, i]) > 1e-7, name
+
+
+def test_jacfwd_wrt_pi_weights(setup):
+    q_of, w0 = setup["q_of"], setup["w0"]
+    zero = setup["zero"]
+    n = w0.shape[0]
+    jac_w = np.asarray(jax.jacfwd(lambda dw: q_of(zero, dw))(jnp.zeros(n)))
+    assert jac_w.shape == (300, n)
+    # Open plays (thresholds 0, 2.5, 8.8, 19.9 V). The last carries a weight 50× below
+    # the linear play's, so rounding in the difference quotient weighs more: measured
+    # errors 2e-9, 1e-7, 4e-7, 1.9e-6.
+    for i, tol in ((0, 1e-6), (3, 1e-6), (8, 1e-6), (15, 1e-5)):
+        fd = _central(lambda dw: q_of(zero, dw), n, i)
+        err = np.linalg.norm(fd - jac_w[:, i]) / np.linalg.norm(jac_w[:, i])
+        assert err < tol, (i, err)
+    # The linear play dominates the stroke (20 of 25 nm/V).
+    norms = np.linalg.norm(jac_w, axis=0)
+    assert norms.argmax() == 0
+    # Plays with thresholds above the 22 V drive never open: exactly no influence.
+    closed = np.asarray(ss.lu2015_slc1720().hysteresis.thresholds) >= 22.0
+    assert closed.any() and np.all(norms[closed] == 0.0)
+    assert np.all(norms[~closed] > 0.0)
+
+
+def test_jvp_equals_jacfwd_column(setup):
+    q_of, jac, zero = setup["q_of"], setup["jac"], setup["zero"]
+    v = jnp.asarray(np.random.default_rng(0).normal(size=len(NAMES)))
+    _, tangent = jax.jvp(q_of, (zero,), (v,))
+    np.testing.assert_allclose(tangent, jac @ np.asarray(v), rtol=1e-10,
+                               atol=1e-12 * np.abs(tangent).max())
+    e3 = jnp.zeros(len(NAMES)).at[3].set(1.0)
+    _, col = jax.jvp(q_of, (zero,), (e3,))
+    np.testing.assert_allclose(col, jac[:, 3], rtol=1e-12, atol=1e-25)
+
+
+def test_reverse_mode_gradient(setup):
+    q_of, jac, zero = setup["q_of"], setup["jac"], setup["zero"]
+    target = np.asarray(q_of(jnp.full(len(NAMES), 0.01)))   # a 1 % different actuator
+
+    def loss(delta):
+        return jnp.mean((q_of(delta) - target) ** 2) / 1e-18   # [nm²]
+
+    g = np.asarray(jax.grad(loss)(zero))
+    residual = np.asarray(q_of(zero)) - target
+    g_fwd = 2 * residual @ jac / residual.size / 1e-18
+    np.testing.assert_allclose(g, g_fwd, rtol=1e-9)
+    for i, name in enumerate(NAMES):
+        fd = float(_central(loss, len(NAMES), i))
+        assert fd == pytest.approx(g[i], rel=1e-5), (name, fd, g[i])   # ≤ 2e-7
+    assert np.all(np.abs(g) > 1e-6 * np.abs(g).max())
+
+
+def test_zba_has_no_influence_in_pure_stick(setup):
+    # A 15 V scan never strains the contact past z_ba: the gradient says, exactly,
+    # that such a recording cannot identify z_ba (and nothing is NaN).
+    q_of, zero = setup["q_of"], setup["zero"]
+    jac = np.asarray(jax.jacfwd(lambda d: q_of(d, voltage=setup["u_scan"]))(zero))
+    assert np.all(np.isfinite(jac))
+    assert np.all(jac[:, NAMES.index("z_ba")] == 0.0)
+    assert np.all(np.linalg.norm(jac[:, :6], axis=0) > 1e-8)
+    fd = _central(lambda d: q_of(d, voltage=setup["u_scan"]), len(NAMES), NAMES.index("z_ba"))
+    assert np.all(fd == 0.0)
+
+
+def test_vmap_over_parameter_sets_equals_loop(setup):
+    q_of = setup["q_of"]
+    deltas = jnp.asarray([[0.0] * 7,
+                          [0.05, -0.1, 0.02, 0.0, 0.1, -0.05, 0.1],
+                          [-0.02, 0.2, -0.05, 0.1, -0.1, 0.1, -0.1]])
+    batched = np.asarray(jax.vmap(q_of)(deltas))
+    looped = np.stack([np.asarray(q_of(d)) for d in deltas])
+    np.testing.assert_allclose(batched, looped, rtol=1e-12, atol=1e-22)
+    # The sets really differ (not a broadcast of one trace).
+    assert np.abs(looped[1] - looped[0]).max() > 1e-9
+    assert np.abs(looped[2] - looped[1]).max() > 1e-9
