@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
-# The main job on the bundled fixtures: simulate every conformance recording from its
-# voltage and parameters, and report how closely the trace is reproduced.
+# The main job on the bundled fixtures:
+#  1. simulate every conformance recording from its voltage and parameters, and report
+#     how closely the independent implementation's trace is reproduced;
+#  2. identify the actuator behind fixtures/identification (17 recordings of the
+#     paper's protocol) from the default profile, and compare with the known truth.
 set -euo pipefail
 BIN=${1:-.venv/bin}
 OUT=out/demo
@@ -11,3 +14,9 @@ for rec in fixtures/reference/ref_*.csv; do
     --out "$OUT/$name.sim.csv" --plot "$OUT/$name.png" --force
 done
 "$BIN/python" scripts/compare_traces.py fixtures/reference "$OUT"
+
+echo
+echo "== identify fixtures/identification (about 3-4 minutes on two cores) =="
+"$BIN/stickslip" identify fixtures/identification --out "$OUT/identify" --fix Ms=0.0247 --force
+"$BIN/python" scripts/compare_params.py "$OUT/identify/params.json" \
+  fixtures/identification/truth.json

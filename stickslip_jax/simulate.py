@@ -28,9 +28,16 @@ DEFAULT_SUBSTEPS = 16
 """Default RK4 sub-steps per sample period (chosen by tests/test_convergence.py)."""
 
 
-def _model_output(actuator: Actuator, voltage, dt, drive, substeps: int, solver: ExplicitRK):
-    """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T)."""
-    y0, m0 = actuator.initial_state(voltage[0], drive)
+def rest_carry(actuator: Actuator, u0, drive):
+    """Scan carry ``(y, memory)`` at rest under voltage ``u0`` [V], and its output q [m]."""
+    y0, m0 = actuator.initial_state(u0, drive)
+    return (y0, m0), actuator.output(y0, u0, actuator.free_stroke(y0, m0, u0), drive)
+
+
+def sample_stepper(actuator: Actuator, dt, drive, substeps: int, solver: ExplicitRK):
+    """The scan body over one sample interval: ``((y, memory), (u_a, u_b)) ↦
+    ((y, memory), q_b)`` with the voltage linear from ``u_a`` to ``u_b`` [V] over
+    ``dt`` [s] and ``q_b`` [m] the output at its end (before the output map)."""
     h = dt / substeps
     # Distinct stage times of the solver (RK4: 0, 1/2, 1) and each stage's column.
     c_unique = tuple(sorted(set(solver.c)))
@@ -89,8 +96,14 @@ def _model_output(actuator: Actuator, voltage, dt, drive, substeps: int, solver:
         q = actuator.output(y, u_b, actuator.free_stroke(y, memory, u_b), drive)
         return (y, memory), q
 
-    q0 = actuator.output(y0, voltage[0], actuator.free_stroke(y0, m0, voltage[0]), drive)
-    _, qs = jax.lax.scan(sample_step, (y0, m0), (voltage[:-1], voltage[1:]))
+    return sample_step
+
+
+def _model_output(actuator: Actuator, voltage, dt, drive, substeps: int, solver: ExplicitRK):
+    """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T)."""
+    carry, q0 = rest_carry(actuator, voltage[0], drive)
+    step = sample_stepper(actuator, dt, drive, substeps, solver)
+    _, qs = jax.lax.scan(step, carry, (voltage[:-1], voltage[1:]))
     return jnp.concatenate([q0[None], qs])
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import typer
 
-from . import params_cmd, simulate
+from . import identify_cmd, params_cmd, simulate
 
 app = typer.Typer(
     name="stickslip",
@@ -18,6 +18,7 @@ app = typer.Typer(
 )
 app.command("simulate", epilog=simulate.EPILOG)(simulate.simulate_command)
 app.command("params", epilog=params_cmd.EPILOG)(params_cmd.params_command)
+app.command("identify", epilog=identify_cmd.EPILOG)(identify_cmd.identify_command)
 
 
 def _version(value: bool) -> None:

@@ -1,0 +1,119 @@
+"""``stickslip identify``: fit an actuator to a set of interferometer recordings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import EXIT_FAILED, fail, reported_errors, setup_jax
+
+EPILOG = """Examples:
+
+  stickslip identify fixtures/identification --out out/id
+
+  stickslip identify runs/*.csv --out out/id --fix Ms=0.0247 --init start.json
+
+  stickslip identify runs/ --out out/id --steps dynamics,hysteresis --force
+
+Exit codes: 0 converged; 2 bad input; 3 a fit did not converge (the parameters are
+then written as params.unconverged.json, never as params.json).
+"""
+
+
+def _parse_fix(items: list[str]) -> dict[str, float]:
+    from ..identify.parameters import FITTABLE
+    from ..params import ParameterError
+
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep:
+            raise ParameterError(f"--fix {item!r}: expected NAME=VALUE (SI), e.g. Ms=0.0247")
+        fixable = [n for n in FITTABLE if n != "pi_weights"]
+        if name not in fixable:
+            raise ParameterError(f"--fix {item!r}: {name!r} is not a fixable parameter; "
+                                 f"choose from {', '.join(fixable)}")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise ParameterError(f"--fix {item!r}: {value!r} is not a number") from None
+        if not out[name] > 0 and name not in ("rho1", "rho2"):
+            raise ParameterError(f"--fix {item!r}: {name} must be positive")
+    return out
+
+
+def identify_command(
+    data: list[Path] = typer.Argument(..., help="Recording files and/or folders (MODEL.md "
+                                      "CSV or NPZ, with a position column)."),
+    out: Path = typer.Option(..., "--out", help="Output folder for params.json, fit.json "
+                             "and figures/."),
+    init: Path | None = typer.Option(None, "--init", help="Starting parameters (JSON). "
+                                     "Default: the lu2015_slc1720 profile."),
+    fix: list[str] = typer.Option([], "--fix", help="Hold NAME at VALUE (SI), repeatable, "
+                                  "e.g. --fix Ms=0.0247. Position data fix only ratios of "
+                                  "masses, dampings and stiffnesses: fix one of them."),
+    steps: str = typer.Option("dynamics,hysteresis,friction,joint", "--steps",
+                              help="Comma-separated steps to run, in this order."),
+    n_pi: int = typer.Option(35, "--n-pi", help="Number of PI play operators."),
+    free_ratio: bool = typer.Option(False, "--free-ratio", help="Also fit zba_ratio "
+                                    "(z_ba/z_ss; fixed at the start value otherwise)."),
+    fit_rho1: bool = typer.Option(False, "--fit-rho1", help="Also fit the contact damping "
+                                  "rho1."),
+    max_steps: int = typer.Option(60, "--max-steps", help="Levenberg-Marquardt step limit "
+                                  "per identification step."),
+    no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
+    force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),
+) -> None:
+    """Identify the actuator's parameters from recordings (Lu 2015's three steps plus a
+    joint refinement), with standard errors, and write params.json, fit.json and
+    figures into --out."""
+    with reported_errors():
+        setup_jax()
+        from ..identify import STEPS, identify
+        from ..identify.report import check_outputs, fit_summary, write_identification
+        from ..io import load_recordings
+        from ..model.profiles import lu2015_slc1720
+        from ..params import ParameterError, load_params
+
+        step_list = [s.strip() for s in steps.split(",") if s.strip()]
+        bad = [s for s in step_list if s not in STEPS]
+        if bad or not step_list:
+            raise fail(f"--steps {steps!r}: unknown step(s) {bad}; choose from "
+                       f"{','.join(STEPS)}")
+        if n_pi < 1:
+            raise ParameterError(f"--n-pi {n_pi}: need at least one play operator")
+        fixed = _parse_fix(fix)
+        recordings = load_recordings(data)
+        check_outputs(out, recordings, force=force)
+        start = load_params(init) if init is not None else lu2015_slc1720()
+        typer.echo(f"{len(recordings)} recording(s); start: "
+                   f"{init if init is not None else 'profile lu2015_slc1720'}", err=True)
+        try:
+            result = identify(recordings, init=start, fix=fixed, steps=step_list, n_pi=n_pi,
+                              free_ratio=free_ratio, fit_rho1=fit_rho1, max_steps=max_steps,
+                              echo=lambda s: typer.echo(s, err=True))
+        except ValueError as err:
+            raise fail(str(err)) from None
+        written = write_identification(result, out, force=force, figures=not no_figures,
+                                       inputs=[r.source for r in recordings if r.source])
+        summary = fit_summary(result)
+    for note in result.notes:
+        typer.echo(f"note: {note}")
+    o = summary["overall"]
+    typer.echo(f"overall NRMSE {100 * o['nrmse']:.4f} % (noise floor "
+               f"{100 * o['noise_floor_nrmse']:.4f} %, ratio {o['nrmse_over_floor']:.3f})")
+    for label, p in summary["parameters"].items():
+        if "[" in label:
+            continue
+        se = f"± {p['std_error']:.3g}" if p["std_error"] is not None else "± ?"
+        flag = "" if p["determined"] else "   (not determined by these data)"
+        typer.echo(f"  {label:14s} {p['value']:.6g} {se} {p['unit']}{flag}")
+    typer.echo(f"wrote {', '.join(str(p) for p in written.values() if p.suffix == '.json')} "
+               f"and {len(written) - 2} figure(s)")
+    if not result.converged:
+        failed = [s.name for s in result.steps if s.result is not None and not s.converged]
+        typer.echo(f"error: step(s) {', '.join(failed)} did not converge; parameters written "
+                   f"to {written['params']} (not trustworthy)", err=True)
+        raise typer.Exit(EXIT_FAILED)

@@ -1,0 +1,15 @@
+"""Identification of an actuator from interferometer recordings (Lu 2015 §IV-B)."""
+
+from .dataset import Dataset, period_ends, step_lengths
+from .parameters import FITTABLE, SCALE_INVARIANT, ParameterMap
+from .residuals import TraceResiduals, nrmse_per_recording, simulate_dataset
+from .solve import SolveResult, solve_least_squares
+from .steps import STEPS, Identification, StepReport, identify
+from .uncertainty import Uncertainty, parameter_uncertainty
+
+__all__ = [
+    "FITTABLE", "SCALE_INVARIANT", "STEPS", "Dataset", "Identification", "ParameterMap",
+    "SolveResult", "StepReport", "TraceResiduals", "Uncertainty", "identify",
+    "nrmse_per_recording", "parameter_uncertainty", "period_ends", "simulate_dataset",
+    "solve_least_squares", "step_lengths",
+]

@@ -1,0 +1,180 @@
+"""Write an identification to a folder: params.json, fit.json and the figures.
+
+``params.json`` follows the parameter contract of MODEL.md, so ``stickslip simulate
+--params`` loads it. When any step did not converge it is written as
+``params.unconverged.json`` instead: a result that is not trustworthy must not sit
+where a good one is expected.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..files import atomic_write_text, check_output_path
+from ..noise import noise_sigma
+from ..params import save_params
+from .figures import mean_step_length, plot_hysteresis_loop, plot_psd_overlay, plot_step_lengths
+from .parameters import UNITS
+
+FIGURES = ("step_psd.png", "fig11_psd.png", "hysteresis_loop.png", "step_length.png")
+
+
+def output_paths(out_dir: Path, recordings) -> list[Path]:
+    """Every file :func:`write_identification` may write into ``out_dir``."""
+    fig = out_dir / "figures"
+    return ([out_dir / "params.json", out_dir / "params.unconverged.json",
+             out_dir / "fit.json"] + [fig / n for n in FIGURES]
+            + [fig / f"overlay_{r.name}.png" for r in recordings])
+
+
+def check_outputs(out_dir: Path, recordings, *, force: bool) -> None:
+    """Refuse up front (before hours of fitting) to replace existing outputs without
+    ``force``, or to write over an input recording."""
+    inputs = [r.source for r in recordings if r.source]
+    for p in output_paths(out_dir, recordings):
+        if p.exists() or any(str(p) == str(i) for i in inputs):
+            check_output_path(p, force=force, inputs=inputs)
+
+
+def classify_regime(rec, q=None) -> str:
+    """``step``, ``sine``, ``scanning``, ``stepping_forward``/``stepping_backward``.
+
+    A sawtooth drive steps when the phase-locked mean step per period exceeds a tenth
+    of the output's peak-to-peak within a period; otherwise the slider follows the
+    piezo back and forth (scanning).
+    """
+    drive = rec.drive
+    if drive.waveform != "sawtooth":
+        return drive.waveform
+    q = rec.position_m if q is None else q
+    step = abs(mean_step_length(rec, q))
+    per = max(int(round(rec.sample_rate_Hz / drive.frequency_Hz)), 2)
+    swing = float(np.median([np.ptp(q[i:i + per]) for i in range(0, len(q) - per + 1, per)]))
+    if not np.isfinite(step) or step <= 0.1 * swing:
+        return "scanning"
+    return "stepping_backward" if drive.is_backward else "stepping_forward"
+
+
+def fit_summary(result) -> dict:
+    """The content of ``fit.json`` (plain JSON types only)."""
+    data = result.data
+    recs = {}
+    floors = []
+    for b, rec in enumerate(data.recordings):
+        q = result.q_sim[b, : rec.n]
+        diff = q - rec.position_m
+        diff = diff - diff.mean()
+        sigma = noise_sigma(rec)
+        floors.append(sigma / data.scale[b])
+        recs[rec.name] = {
+            "regime": classify_regime(rec),
+            "nrmse": float(result.nrmse[b]),
+            "rms_residual_nm": float(np.sqrt(np.mean(diff**2)) * 1e9),
+            "noise_floor_nm": sigma * 1e9,
+            "noise_floor_nrmse": float(sigma / data.scale[b]),
+        }
+    params = {}
+    unc = result.uncertainty
+    for lab, entry in (unc.as_dict() if unc is not None else {}).items():
+        base = lab.split("[")[0]
+        params[lab] = {**entry, "unit": UNITS.get(base, "")}
+    scalars = [i for i, lab in enumerate(unc.labels) if "[" not in lab] if unc else []
+    corr = ({"labels": [unc.labels[i] for i in scalars],
+             "matrix": [[None if not np.isfinite(unc.correlations[i, j]) else
+                         round(float(unc.correlations[i, j]), 4) for j in scalars]
+                        for i in scalars]} if unc else None)
+    steps = [{
+        "name": s.name, "converged": s.converged, "skipped": s.result is None,
+        "message": s.result.message if s.result else s.note,
+        "iterations": s.result.iterations if s.result else 0,
+        "wall_s": round(s.result.wall_s, 2) if s.result else 0.0,
+        "free": list(s.free), "recordings": list(s.recordings),
+        "nrmse_before": None if not np.isfinite(s.nrmse_before) else float(s.nrmse_before),
+        "nrmse_after": None if not np.isfinite(s.nrmse_after) else float(s.nrmse_after),
+    } for s in result.steps]
+    nrmse = float(np.mean(result.nrmse))
+    floor = float(np.mean(floors))
+    return {
+        "converged": result.converged,
+        "overall": {"nrmse": nrmse, "noise_floor_nrmse": floor,
+                    "nrmse_over_floor": nrmse / floor if floor > 0 else None,
+                    "residual_sigma_nm": unc.sigma * 1e9 if unc else None},
+        "notes": list(result.notes),
+        "fixed": {k: float(v) for k, v in result.fixed.items()},
+        "recordings": recs,
+        "parameters": params,
+        "correlations": corr,
+        "steps": steps,
+    }
+
+
+def write_identification(result, out_dir: str | Path, *, force: bool = False,
+                         inputs=(), figures: bool = True) -> dict[str, Path]:
+    """Write ``result`` (an :class:`Identification`) into ``out_dir``; returns the paths.
+
+    ``inputs`` are files that must never be written over.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = {}
+    name = "params.json" if result.converged else "params.unconverged.json"
+    written["params"] = save_params(result.actuator, out_dir / name, force=force, inputs=inputs)
+    fit = out_dir / "fit.json"
+    check_output_path(fit, force=force, inputs=inputs)
+    atomic_write_text(fit, json.dumps(fit_summary(result), indent=1) + "\n")
+    written["fit"] = fit
+    if figures:
+        written.update(write_figures(result, out_dir / "figures", force=force))
+    return written
+
+
+def _pick(recs, sims, waveform, amplitude=None, frequency=None):
+    out = [(r, q) for r, q in zip(recs, sims, strict=True) if r.drive.waveform == waveform
+           and (amplitude is None or math.isclose(r.drive.amplitude_V or 0, amplitude))
+           and (frequency is None or math.isclose(r.drive.frequency_Hz or 0, frequency))]
+    return sorted(out, key=lambda x: bool(x[0].drive.is_backward))
+
+
+def write_figures(result, fig_dir: Path, *, force: bool = False) -> dict[str, Path]:
+    """The figures of the identification issue: an overlay per recording, the step PSD,
+    the 20 V/500 Hz and 40 V/50 Hz sawtooth PSDs (Lu 2015 Fig. 11), the hysteresis
+    loop, and the step length against amplitude. Figures that lack their recordings
+    are skipped."""
+    from ..plots import plot_trace
+
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    recs = list(result.data.recordings)
+    sims = [result.q_sim[b, : r.n] for b, r in enumerate(recs)]
+    out = {}
+
+    def target(name):
+        return check_output_path(fig_dir / name, force=force)
+
+    for rec, q in zip(recs, sims, strict=True):
+        shift = np.mean(rec.position_m - q)  # show the model on the recording's zero
+        out[f"overlay_{rec.name}"] = plot_trace(
+            rec.time_s, rec.voltage_V, q + shift, q_meas_m=rec.position_m,
+            title=f"{rec.name}: NRMSE {100 * float(result.nrmse[recs.index(rec)]):.3f} %",
+            path=target(f"overlay_{rec.name}.png"))
+    steps = _pick(recs, sims, "step")
+    if steps:
+        out["step_psd"] = plot_psd_overlay([steps[0][0]], [steps[0][1]],
+                                           title="step response PSD",
+                                           path=target("step_psd.png"))
+    fig11 = [x for a, f in ((20.0, 500.0), (40.0, 50.0))
+             for x in _pick(recs, sims, "sawtooth", a, f)[:1]]
+    if fig11:
+        out["fig11_psd"] = plot_psd_overlay(
+            [r for r, _ in fig11], [q for _, q in fig11],
+            title="sawtooth responses (Lu 2015 Fig. 11)", path=target("fig11_psd.png"))
+    slow = _pick(recs, sims, "sine")
+    if slow:
+        out["hysteresis_loop"] = plot_hysteresis_loop(result.actuator, slow[0][0], slow[0][1],
+                                                      path=target("hysteresis_loop.png"))
+    if _pick(recs, sims, "sawtooth"):
+        out["step_length"] = plot_step_lengths(recs, sims, path=target("step_length.png"))
+    return out

@@ -1,0 +1,186 @@
+"""Residual vectors for least squares: time traces, step-response PSD, step lengths.
+
+Every term is scaled so that a recording's contribution is comparable with its
+NRMSE (MODEL.md "Fit quality"): the sum of squares of the time-domain term over a
+set is Σ_recordings NRMSE², with the best constant offset of each recording removed
+analytically (the interferometer's zero is arbitrary).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..simulate import DEFAULT_SUBSTEPS, _model_output
+from ..solvers import RK4
+from .dataset import Dataset
+from .parameters import ParameterMap
+
+
+def simulate_dataset(actuator, data: Dataset, *, substeps: int = DEFAULT_SUBSTEPS):
+    """Model output q [m] for every (padded) recording of ``data``, shape (B, T).
+
+    Each length bucket of ``data`` is one vmapped scan over its own padded length;
+    the outputs are padded (last value repeated) to the common length and put back in
+    recording order.
+    """
+
+    def one(u, dt, drive):
+        q = _model_output(actuator, u, dt, drive, substeps, RK4)
+        return actuator.output_map(dt * jnp.arange(u.shape[0]), q)
+
+    total = data.voltages.shape[1]
+    buckets = data.buckets or ((tuple(range(len(data))), total),)
+    parts, order = [], []
+    for idx, length in buckets:
+        sel = np.asarray(idx)
+        drives = jax.tree_util.tree_map(lambda x, s=sel: x[s], data.drives)
+        q = jax.vmap(one)(jnp.asarray(data.voltages[sel, :length]), jnp.asarray(data.dt[sel]),
+                          drives)
+        parts.append(jnp.pad(q, ((0, 0), (0, total - length)), mode="edge"))
+        order += list(idx)
+    q = jnp.concatenate(parts, axis=0)
+    return q if order == sorted(order) else q[np.argsort(order)]
+
+
+def offset_removed(diff, mask):
+    """``diff`` minus its masked mean along the last axis (best constant offset)."""
+    n = jnp.sum(mask, axis=-1, keepdims=True)
+    return (diff - jnp.sum(diff * mask, axis=-1, keepdims=True) / n) * mask
+
+
+def nrmse_per_recording(q_sim, data: Dataset) -> np.ndarray:
+    """NRMSE of each recording (offset removed), as a numpy array [-]."""
+    mask = jnp.asarray(data.mask)
+    r = offset_removed(jnp.asarray(q_sim) - jnp.asarray(data.measured), mask)
+    n = jnp.sum(mask, axis=-1)
+    return np.asarray(jnp.sqrt(jnp.sum(r**2, axis=-1) / n) / jnp.asarray(data.scale))
+
+
+def _psd(x, dt, xp):
+    """Periodogram PSD [m²/Hz] (Hann window, normalised so that white noise of
+    variance σ² has the level σ²·dt) at the rfft frequencies [Hz], after removing the
+    line through the ends, so the ends meet and the window does not leak a jump."""
+    x = xp.asarray(x)
+    n = x.shape[-1]
+    t = xp.arange(n)
+    slope = (x[..., -1] - x[..., 0]) / (n - 1)
+    x = x - x[..., :1] - slope[..., None] * t
+    win = np.hanning(n)
+    spec = xp.fft.rfft(x * xp.asarray(win)) * dt
+    return np.fft.rfftfreq(n, dt), (xp.abs(spec) ** 2) / (dt * float(np.sum(win**2)))
+
+
+def log_psd(x, dt, *, band=(50.0, 5000.0), xp=jnp):
+    """Log power spectral density (Hann window) of a trace in a band.
+
+    Returns ``(frequencies [Hz], log10 PSD [m²/Hz])`` for the bins inside ``band``.
+    ``xp`` is ``jax.numpy`` (traceable) or ``numpy`` (for measured data).
+    """
+    f, psd = _psd(x, dt, xp)
+    keep = np.flatnonzero((f >= band[0]) & (f <= band[1]))
+    return f[keep], xp.log10(psd[..., keep] + 1e-40)
+
+
+def band_matrix(n: int, dt: float, *, band=(50.0, 5000.0), n_bands: int = 30):
+    """Averaging matrix (bands × rfft bins) over log-spaced bands, and band centres [Hz].
+
+    A periodogram bin of white noise scatters by a factor of ~3 in power; averaging
+    the bins of each band (1/5 octave for the default) before the log makes the
+    log-PSD a smooth, low-variance shape to fit. Bands without a bin are dropped.
+    """
+    f = np.fft.rfftfreq(n, dt)
+    edges = np.geomspace(band[0], band[1], n_bands + 1)
+    rows, centres = [], []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (f >= lo) & (f < hi)
+        if np.any(sel):
+            rows.append(sel / sel.sum())
+            centres.append(np.sqrt(lo * hi))
+    return np.array(rows), np.array(centres)
+
+
+def band_log_psd(x, dt, bands, *, floor=0.0, xp=jnp):
+    """log10 of the band-averaged PSD [m²/Hz] (``bands`` from :func:`band_matrix`) plus
+    ``floor`` [m²/Hz], the measurement noise added to a noiseless simulation."""
+    _, psd = _psd(x, dt, xp)
+    return xp.log10(xp.asarray(bands) @ psd + floor + 1e-40)
+
+
+def noise_floor_psd(x, dt) -> float:
+    """White-noise PSD level [m²/Hz] of a measured trace: the mean of its upper
+    half-band (above Nyquist/2), where the actuator's response has died out. (The
+    mean, not the median: periodogram bins are exponentially distributed, and their
+    median is ln 2 ≈ 0.69 of the level.)"""
+    f, psd = _psd(x, dt, np)
+    return float(np.mean(psd[f >= 0.25 / dt]))
+
+
+DEFAULT_W_PSD = 0.01
+"""Weight of the step-response log-PSD term. Band-averaged log10 PSDs of a noisy
+trace scatter by ~0.1 per band, so at the optimum the term costs ~1e-2·w²; with
+w = 0.01 it guides the resonances from far away without outweighing the time-domain
+term (NRMSE² ~ 1e-6 at a 1 nm noise floor) near the optimum."""
+
+
+class TraceResiduals(eqx.Module):
+    """``θ ↦`` residual vector over a dataset (used as ``fn(y, args)`` by optimistix).
+
+    Terms: time-domain (always; weight ``w_time``), band-averaged log-PSD of the step
+    responses (``w_psd``, see :data:`DEFAULT_W_PSD`; the measured noise floor is added
+    to the simulated PSD so that the high-frequency bands compare like with like), and
+    per-period step lengths of the sawtooth recordings (``w_steps``). With
+    ``in_metres`` the vector is only the offset-removed sample residuals [m] (padding
+    zeroed), whose noise is the sensor's white noise: the basis of the uncertainty.
+    """
+
+    pmap: ParameterMap
+    data: Dataset = eqx.field(static=True)
+    w_time: float = eqx.field(static=True, default=1.0)
+    w_psd: float = eqx.field(static=True, default=0.0)
+    w_steps: float = eqx.field(static=True, default=0.0)
+    substeps: int = eqx.field(static=True, default=DEFAULT_SUBSTEPS)
+    in_metres: bool = eqx.field(static=True, default=False)
+
+    def simulate(self, theta):
+        return simulate_dataset(self.pmap.actuator(theta), self.data, substeps=self.substeps)
+
+    def __call__(self, theta, args=None):
+        d = self.data
+        q = self.simulate(theta)
+        mask = jnp.asarray(d.mask)
+        n = jnp.sum(mask, axis=-1, keepdims=True)
+        scale = jnp.asarray(d.scale)[:, None]
+        diff = offset_removed(q - jnp.asarray(d.measured), mask)
+        if self.in_metres:  # raw sample residuals [m], for the noise-based uncertainty
+            return diff.reshape(-1)
+        parts = [(self.w_time * diff / (scale * jnp.sqrt(n))).reshape(-1)]
+        if self.w_psd > 0:
+            parts += self._psd_terms(q)
+        if self.w_steps > 0:
+            parts += self._step_terms(q)
+        return jnp.concatenate(parts)
+
+    def _psd_terms(self, q):
+        out = []
+        for b, rec in enumerate(self.data.recordings):
+            if rec.drive.waveform != "step":
+                continue
+            bands, _ = band_matrix(rec.n, rec.dt)
+            floor = noise_floor_psd(rec.position_m, rec.dt)
+            lp_meas = band_log_psd(rec.position_m, rec.dt, bands, xp=np)
+            lp_sim = band_log_psd(q[b, : rec.n], rec.dt, bands, floor=floor)
+            out.append(self.w_psd * (lp_sim - lp_meas) / np.sqrt(lp_meas.size))
+        return out
+
+    def _step_terms(self, q):
+        out = []
+        for b, ends in enumerate(self.data.ends):
+            if len(ends) < 2:
+                continue
+            meas = np.diff(self.data.recordings[b].position_m[ends])
+            sim = jnp.diff(q[b, ends])
+            out.append(self.w_steps * (sim - meas) / (self.data.scale[b] * np.sqrt(len(meas))))
+        return out

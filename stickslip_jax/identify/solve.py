@@ -1,0 +1,138 @@
+"""One least-squares solve: optimistix Levenberg-Marquardt with progress and a verdict.
+
+The Jacobian is built in forward mode, so its cost grows with the number of
+parameters, not the length of the traces. Optimistix linearises the residual function
+at every iterate and then materialises the damped operator column by column; through
+a long scan, replaying the linearised scan for each column is several times slower
+than one ``jax.jacfwd``. :func:`dense_jacobian` therefore gives the residual function
+a custom JVP that builds the dense Jacobian with ``jacfwd`` once per iterate and
+applies it as a matrix product.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """Outcome of one solve.
+
+    ``theta`` the solution in fitted coordinates; ``converged`` True only when
+    optimistix reports success; ``message`` its verdict in words; ``iterations`` the
+    number of LM steps; ``wall_s`` [s] including compilation; ``cost_start`` and
+    ``cost_end`` the sum of squared residuals at the start and the end.
+    """
+
+    theta: np.ndarray
+    converged: bool
+    message: str
+    iterations: int
+    wall_s: float
+    cost_start: float
+    cost_end: float
+
+
+def dense_jacobian(fn: Callable):
+    """``fn(θ)`` with a JVP rule ``J(θ)·t`` where ``J = jax.jacfwd(fn)(θ)`` is dense.
+
+    Values and derivatives are those of ``fn``; only the way the derivative is
+    evaluated changes (once, vectorised over the parameters, then stored).
+    """
+
+    @jax.custom_jvp
+    def wrapped(theta):
+        return fn(theta)
+
+    @wrapped.defjvp
+    def _jvp(primals, tangents):
+        (theta,), (t,) = primals, tangents
+        jac, value = jax.jacfwd(lambda th: (fn(th), fn(th)), has_aux=True)(theta)
+        return value, jac @ t
+
+    return wrapped
+
+
+def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float = 1e-4,
+                        atol: float = 1e-6, ftol: float | None = None, window: int = 5,
+                        label: str = "fit",
+                        echo: Callable[[str], None] | None = None) -> SolveResult:
+    """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
+
+    Optimistix's solver takes the steps; this loop drives them one at a time (as
+    ``optx.least_squares`` does inside a while loop) so that it can report progress
+    and apply a second convergence test. Two ways to converge, whichever comes first:
+
+    - optimistix's Cauchy test: the change of θ and of the residual vector between
+      accepted steps are small in RMS over their entries, ``rms(|Δθ| / (atol +
+      rtol·|θ|)) < 1`` and the same for the residuals. θ is a relative change of each
+      parameter, so ``atol = 1e-6`` is 1 ppm.
+    - a stationary cost (MINPACK's ftol test): over the last ``window`` accepted steps
+      the cost fell by less than ``ftol`` of itself. Near the optimum of N residuals
+      moving the parameters by one standard error changes the cost by about cost/N,
+      so the default ``ftol = 0.1/N`` stops once the steps move the fit by well under
+      a standard error; this ends fits whose poorly determined directions (e.g. a PI
+      weight) keep drifting without effect, which the θ test alone would hold open.
+
+    Never raises on failure: the verdict is in the result.
+    """
+    theta = jnp.asarray(theta0, dtype=float)
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm)
+    start = time.perf_counter()
+    dense = dense_jacobian(residuals)
+
+    def fn(th, args):
+        return dense(th), None
+
+    options, tags = {"jac": "fwd"}, frozenset()
+    f_struct = jax.eval_shape(dense, theta)
+    if ftol is None:
+        ftol = 0.1 / max(int(np.prod(f_struct.shape)), 1)
+    state = solver.init(fn, theta, None, options, f_struct, None, tags)
+    dynamic0, static = eqx.partition(state, eqx.is_array)
+
+    @jax.jit
+    def step(y, dynamic):
+        new_y, new_state, _ = solver.step(fn, y, None, options, eqx.combine(static, dynamic),
+                                          tags)
+        loss = jnp.sum(new_state.f_info.residual ** 2)
+        return new_y, eqx.partition(new_state, eqx.is_array)[0], loss
+
+    y, dynamic = theta, dynamic0
+    costs: list[float] = []  # cost at each accepted point, the start first
+    ok, message, n = False, f"not converged: hit max_steps={max_steps}", 0
+    # The first call only evaluates the start (optimistix accepts it as the first
+    # point); each later call proposes one LM step and accepts or rejects it.
+    for n in range(max_steps + 1):
+        y, dynamic, loss = step(y, dynamic)
+        st = eqx.combine(static, dynamic)
+        cost, accepted = float(loss), int(st.num_accepted_steps)
+        if accepted > len(costs):
+            costs.append(cost)
+        if echo is not None:
+            echo(f"  {label}: step {n:3d}  accepted {accepted - 1:3d}  cost {cost:.4e}")
+        if not (np.all(np.isfinite(np.asarray(y))) and np.isfinite(cost)):
+            ok, message = False, "failed: non-finite parameters or cost"
+            break
+        if not bool(st.result == optx.RESULTS.successful):
+            ok, message = False, f"failed: {optx.RESULTS[st.result]}"
+            break
+        if bool(st.terminate):
+            ok, message = True, "converged (parameter and residual changes below tolerance)"
+            break
+        if len(costs) > window and costs[-window - 1] - costs[-1] <= ftol * costs[-1]:
+            ok, message = True, (f"converged (cost stationary: fell by less than {ftol:.2g} "
+                                 f"of itself over {window} accepted steps)")
+            break
+    wall = time.perf_counter() - start
+    cost_fn = jax.jit(lambda th: jnp.sum(residuals(th) ** 2))
+    return SolveResult(np.asarray(y), ok, message, n, wall, float(cost_fn(theta)),
+                       float(cost_fn(y)))

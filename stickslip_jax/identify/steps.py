@@ -1,0 +1,230 @@
+"""The paper's three identification steps plus a joint refinement (Lu 2015 §IV-B).
+
+1. ``dynamics``: Mp, Dp, Kp, Ds, rho0 (Ms fixed; rho1 on request) from the step
+   responses: time-domain residuals plus a log-PSD term, started from the measured
+   first resonance.
+2. ``hysteresis``: the PI weights (loop kept monotone) from the sine recordings, with
+   the dynamics of step 1 in the loop.
+3. ``friction``: z_ba per drive direction (and zba_ratio on request) from the
+   scanning and stepping sawtooth recordings: trace shape and phase-locked
+   per-period step lengths.
+4. ``joint``: everything at once on every recording.
+
+Position data determine masses, dampings and stiffnesses only up to one common
+factor, so one of them is held at a known value (by default ``Ms``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..model.actuator import Actuator
+from ..model.friction import AbstractElastoPlastic
+from .dataset import Dataset
+from .initial import (
+    measured_step_mode,
+    pi_over_range,
+    scale_pi_quasistatic,
+    scale_to_step_mode,
+)
+from .parameters import SCALE_INVARIANT, ParameterMap, _getter
+from .residuals import DEFAULT_W_PSD, TraceResiduals, nrmse_per_recording
+from .solve import SolveResult, solve_least_squares
+from .uncertainty import Uncertainty, parameter_uncertainty
+
+STEPS = ("dynamics", "hysteresis", "friction", "joint")
+DYNAMICS = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0")
+
+
+@dataclass
+class StepReport:
+    """What one step fitted, on which recordings, and how it went."""
+
+    name: str
+    recordings: list[str]
+    free: list[str]
+    result: SolveResult | None
+    nrmse_before: float
+    nrmse_after: float
+    note: str = ""
+
+    @property
+    def converged(self) -> bool:
+        return self.result is not None and self.result.converged
+
+
+@dataclass
+class Identification:
+    """Result of :func:`identify`: the fitted actuator and the evidence."""
+
+    actuator: Actuator
+    steps: list[StepReport]
+    data: Dataset
+    nrmse: np.ndarray
+    uncertainty: Uncertainty | None
+    notes: list[str] = field(default_factory=list)
+    q_sim: np.ndarray | None = None
+    fixed: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        """True when every step that ran converged."""
+        return all(s.converged for s in self.steps if s.result is not None)
+
+
+def _is_step(r):
+    return r.drive.waveform == "step"
+
+
+def _is_sine(r):
+    return r.drive.waveform == "sine"
+
+
+def _is_saw(r):
+    return r.drive.waveform == "sawtooth"
+
+
+def _apply_fixed(actuator: Actuator, fixed: dict[str, float]) -> Actuator:
+    for name, value in fixed.items():
+        actuator = eqx.tree_at(_getter(name), actuator, jnp.asarray(float(value)))
+    return actuator
+
+
+def identify(
+    recordings: Sequence,
+    *,
+    init: Actuator,
+    fix: dict[str, float] | None = None,
+    steps: Sequence[str] = STEPS,
+    n_pi: int = 35,
+    free_ratio: bool = False,
+    fit_rho1: bool = False,
+    max_steps: int = 60,
+    w_psd: float = DEFAULT_W_PSD,
+    echo: Callable[[str], None] | None = None,
+) -> Identification:
+    """Identify an actuator from recordings (see the module docstring).
+
+    ``init`` the starting actuator (elasto-plastic friction); ``fix`` names held at
+    given SI values; ``steps`` which of ``dynamics, hysteresis, friction, joint`` to
+    run, in that order; ``n_pi`` play operators over the recorded voltage range;
+    ``free_ratio`` also fits ``zba_ratio``; ``fit_rho1`` also fits ``rho1``; ``w_psd``
+    weight of the step-response log-PSD term (see :class:`TraceResiduals`);
+    ``echo`` receives progress lines.
+    """
+    say = echo or (lambda s: None)
+    fix = dict(fix or {})
+    unknown = [s for s in steps if s not in STEPS]
+    if unknown:
+        raise ValueError(f"unknown step(s) {unknown}; choose from {', '.join(STEPS)}")
+    if not isinstance(init.friction, AbstractElastoPlastic):
+        raise ValueError("identification fits the elasto-plastic friction law; the starting "
+                         "parameters use another law")
+    data = Dataset.from_recordings(recordings)
+    notes: list[str] = []
+    if not any(n in fix for n in SCALE_INVARIANT):
+        fix["Ms"] = float(init.slider.Ms)
+        notes.append(
+            f"Position data determine Mp, Dp, Kp, Ms, Ds, rho0, rho1, rho2 only up to one "
+            f"common factor. Ms was held at {fix['Ms']:g} kg (the starting value); pass "
+            f"--fix Ms=<weighed mass> (or fix another of them) to set the scale.")
+    act = _apply_fixed(init, fix)
+    act = pi_over_range(act, data.recordings, n_pi)
+
+    step_recs = [r for r in data.recordings if _is_step(r)]
+    slow = [r for r in data.recordings if _is_sine(r)] or step_recs
+    # Start-up estimates only for the steps that start from a rough guess.
+    if slow and ("dynamics" in steps or "hysteresis" in steps):
+        act, gain = scale_pi_quasistatic(act, slow[0])
+        notes.append(f"Start: PI weights scaled by {gain:.3g} to the stroke of {slow[0].name}.")
+    if step_recs and "dynamics" in steps:
+        mode = measured_step_mode(step_recs[0])
+        if mode is None:
+            notes.append("Start: no clear ringing after the step edge; the starting "
+                         "stiffnesses and dampings were kept.")
+        else:
+            act, k, d = scale_to_step_mode(act, *mode)
+            notes.append(f"Start: step ringing measured at {mode[0]:.0f} Hz (damping ratio "
+                         f"{mode[1]:.2f}); stiffnesses scaled by {k:.3g}, dampings by {d:.3g}.")
+
+    def free_dynamics():
+        names = [n for n in DYNAMICS if n not in fix]
+        if fit_rho1 and "rho1" not in fix:
+            names.append("rho1")
+        return names
+
+    def free_friction():
+        names = [n for n in ("z_ba_forward", "z_ba_backward") if n not in fix]
+        if free_ratio and "zba_ratio" not in fix:
+            names.append("zba_ratio")
+        return names
+
+    def step_breakaway():
+        # A fast step edge makes the slider slip, so the breakaway of the step's
+        # direction shapes the step response as much as the dynamics do.
+        dirs = {"z_ba_backward" if r.drive.is_backward else "z_ba_forward" for r in step_recs}
+        return [n for n in sorted(dirs) if n not in fix]
+
+    plan = {
+        "dynamics": (_is_step, free_dynamics() + step_breakaway(), dict(w_psd=w_psd)),
+        "hysteresis": (_is_sine, ["pi_weights"], {}),
+        "friction": (_is_saw, free_friction(), dict(w_steps=1.0)),
+        "joint": (lambda r: True, free_dynamics() + ["pi_weights"] + free_friction(),
+                  dict(w_psd=w_psd, w_steps=1.0)),
+    }
+    reports: list[StepReport] = []
+    for name in STEPS:
+        if name not in steps:
+            continue
+        keep, free, weights = plan[name]
+        subset = [r for r in data.recordings if keep(r)]
+        # Only directions present in the data can be fitted.
+        if name in ("friction", "joint"):
+            dirs = {r.drive.is_backward for r in subset}
+            free = [n for n in free if not (n == "z_ba_backward" and True not in dirs)]
+        if not subset or not free:
+            reports.append(StepReport(name, [], free, None, np.nan, np.nan,
+                                      "skipped: no recordings of this kind"
+                                      if not subset else "skipped: nothing free"))
+            say(f"[{name}] skipped ({reports[-1].note})")
+            continue
+        sub = Dataset.from_recordings(subset)
+        pmap = ParameterMap.make(act, free)
+        res = TraceResiduals(pmap, sub, **weights)
+        before = float(nrmse_per_recording(res.simulate(pmap.zeros()), sub).mean())
+        say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}; "
+            f"NRMSE {100 * before:.3f} %")
+        out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=name,
+                                  echo=say)
+        act = pmap.actuator(jnp.asarray(out.theta))
+        after = float(nrmse_per_recording(res.simulate(jnp.asarray(out.theta)), sub).mean())
+        say(f"[{name}] {out.message} after {out.iterations} steps, {out.wall_s:.1f} s; "
+            f"NRMSE {100 * after:.3f} %")
+        reports.append(StepReport(name, [r.name for r in subset], free, out, before, after))
+
+    # Final evaluation and uncertainty on every recording with every fitted quantity.
+    free_all = free_dynamics() + ["pi_weights"] + free_friction()
+    final = TraceResiduals(ParameterMap.make(act, free_all), data, in_metres=True)
+    t0 = time.perf_counter()
+    say("[uncertainty] Jacobian at the optimum...")
+    pmap = final.pmap
+    theta = pmap.zeros()
+    jac = np.asarray(jax.jit(jax.jacfwd(final))(theta))
+    resid = np.asarray(final(theta))
+    q_sim = np.asarray(final.simulate(theta))
+    phys = pmap.physical(theta)
+    values = np.concatenate([np.atleast_1d(phys[n]) for n in pmap.names])
+    # Real samples minus one fitted offset per recording.
+    n_obs = int(data.mask.sum()) - len(data)
+    unc = parameter_uncertainty(jac, resid, pmap.value_jacobian(theta), values, pmap.labels(),
+                                n_obs=n_obs)
+    say(f"[uncertainty] done in {time.perf_counter() - t0:.1f} s")
+    nrmse = nrmse_per_recording(q_sim, data)
+    return Identification(act, reports, data, nrmse, unc, notes, q_sim, fix)

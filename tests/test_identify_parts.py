@@ -1,0 +1,188 @@
+"""Pieces of the identification: start-up estimates, transforms, spectra, statistics."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import stickslip_jax as ss
+from stickslip_jax.identify import Dataset, ParameterMap, parameter_uncertainty
+from stickslip_jax.identify.dataset import length_buckets
+from stickslip_jax.identify.initial import (
+    measured_step_mode,
+    resample_pi,
+    scale_pi_quasistatic,
+    scale_to_step_mode,
+    stroke_along,
+)
+from stickslip_jax.identify.report import classify_regime
+from stickslip_jax.identify.residuals import band_log_psd, band_matrix, noise_floor_psd
+from stickslip_jax.noise import noise_sigma
+
+
+def _recording(t, q):
+    return ss.make_recording(t, np.zeros_like(t), waveform="step",
+                             amplitude_V=0.0, name="noise").with_position_m(q)
+
+
+def test_step_mode_recovers_damped_ringing_under_noise():
+    fs = 25_000.0
+    t = np.arange(1500) / fs
+    f_d, zeta = 612.0, 0.3
+    sigma = zeta * 2 * np.pi * f_d / np.sqrt(1 - zeta**2)
+    after = t >= 2e-3
+    tt = t - 2e-3
+    q = np.where(after, 1e-6 * (1 - np.exp(-sigma * tt) * np.cos(2 * np.pi * f_d * tt)), 0.0)
+    q = q + 2e-9 * np.random.default_rng(1).standard_normal(t.size)
+    rec = ss.make_recording(t, np.where(after, 40.0, 0.0), waveform="step",
+                            amplitude_V=40.0, name="ring").with_position_m(q)
+    f_est, z_est = measured_step_mode(rec)
+    assert f_est == pytest.approx(f_d, rel=0.01)
+    assert z_est == pytest.approx(zeta, abs=0.03)
+
+
+def test_step_mode_is_none_without_ringing():
+    t = np.arange(800) / 25_000.0
+    rec = _recording(t, 1e-9 * np.random.default_rng(0).standard_normal(t.size))
+    assert measured_step_mode(rec) is None
+
+
+def test_scaling_to_a_measured_mode_moves_the_first_mode_there():
+    act = ss.lu2015_slc1720()
+    moved, k, d = scale_to_step_mode(act, 700.0, 0.25)
+    m = ss.stick_modes(moved)
+    assert m.damped_Hz[0] == pytest.approx(700.0, rel=0.01)
+    assert m.damping_ratio[0] == pytest.approx(0.25, rel=0.05)
+    assert float(moved.slider.Ms) == float(act.slider.Ms)  # masses keep the scale
+    assert k > 1.0
+
+
+def test_quasistatic_gain_matches_a_stuck_sine():
+    act = ss.lu2015_slc1720()
+    t, u = ss.sine(40.0, 20.0, duration_s=0.1)
+    q = 2.0 * 1.25 * stroke_along(act, u)  # stick: q = 2·Γ, with a 25 % stronger PI
+    rec = ss.make_recording(t, u, waveform="sine", amplitude_V=40.0,
+                            frequency_Hz=20.0, name="slow").with_position_m(q)
+    _, gain = scale_pi_quasistatic(act, rec)
+    assert gain == pytest.approx(1.25, rel=1e-6)
+
+
+def test_resample_pi_keeps_the_loading_curve_on_shared_thresholds():
+    pi = ss.lu2015_slc1720().hysteresis
+    r = np.asarray(pi.thresholds)
+    same = resample_pi(pi, r)
+    np.testing.assert_allclose(np.asarray(same.weights), np.asarray(pi.weights), rtol=1e-12)
+    coarse = resample_pi(pi, r[::5])
+    assert np.all(np.cumsum(np.asarray(coarse.weights)) > 0)
+
+
+def test_length_buckets_group_similar_lengths_and_cover_every_recording():
+    lengths = np.array([1250, 500, 2500, 1250, 500, 2500, 1500])
+    buckets = length_buckets(lengths)
+    assert sorted(i for idx, _ in buckets for i in idx) == list(range(7))
+    for idx, n in buckets:
+        assert n == max(lengths[list(idx)])
+        assert min(lengths[list(idx)]) >= 0.75 * n
+    assert len(buckets) == 3
+
+
+def test_bucketed_simulation_equals_one_padded_batch(fixtures_dir):
+    from dataclasses import replace
+
+    from stickslip_jax.identify import simulate_dataset
+
+    recs = [ss.load_recording(fixtures_dir / "identification" / f"{n}.csv")
+            for n in ("step_40V", "saw_40V_500Hz_bwd", "sine_40V_50Hz")]
+    data = Dataset.from_recordings(recs)
+    assert len(data.buckets) == 2
+    act = ss.lu2015_slc1720()
+    q = np.asarray(simulate_dataset(act, data, substeps=4))
+    q1 = np.asarray(simulate_dataset(act, replace(data, buckets=()), substeps=4))
+    np.testing.assert_allclose(q * data.mask, q1 * data.mask, rtol=1e-12, atol=1e-20)
+
+
+def test_parameter_map_starts_at_the_start_and_keeps_pi_monotone():
+    act = ss.lu2015_slc1720()
+    pmap = ParameterMap.make(act, ["Mp", "zba_ratio", "rho1", "pi_weights"])
+    back = pmap.actuator(pmap.zeros())
+    assert float(back.piezo.Mp) == pytest.approx(float(act.piezo.Mp), rel=1e-14)
+    assert float(back.friction.zba_ratio) == pytest.approx(0.667, rel=1e-12)
+    np.testing.assert_allclose(np.asarray(back.hysteresis.weights),
+                               np.asarray(act.hysteresis.weights), rtol=1e-12, atol=1e-24)
+    theta = jnp.asarray(np.random.default_rng(3).normal(0, 2.0, pmap.size))
+    moved = pmap.actuator(theta)
+    assert np.all(np.cumsum(np.asarray(moved.hysteresis.weights)) > 0)
+    assert 0 < float(moved.friction.zba_ratio) < 1
+    assert float(moved.friction.rho1) >= 0
+    with pytest.raises(KeyError, match="not a fittable"):
+        ParameterMap.make(act, ["mass"])
+
+
+def test_noise_floor_of_white_noise_gives_its_sigma():
+    rng = np.random.default_rng(7)
+    t = np.arange(4000) / 25_000.0
+    rec = _recording(t, 3e-9 * rng.standard_normal(t.size))
+    assert noise_sigma(rec) == pytest.approx(3e-9, rel=0.05)
+    bands, centres = band_matrix(t.size, 4e-5)
+    lp = band_log_psd(rec.position_m, 4e-5, bands, xp=np)
+    level = np.log10(noise_floor_psd(rec.position_m, 4e-5))
+    bins = 1.0 / bands.max(axis=1)
+    wide = bins >= 10  # n Hann-windowed bins scatter by ~0.43/√(n/2) in log10
+    assert wide.sum() > 10
+    err = (lp - level)[wide]
+    assert np.sqrt(np.mean(err**2)) < 0.12
+    assert abs(np.mean(err)) < 0.06  # no bias: the level is the mean, not the median
+    assert len(centres) == bands.shape[0]
+
+
+def test_uncertainty_matches_the_linear_regression_formula_and_flags_null_directions():
+    rng = np.random.default_rng(11)
+    x = np.linspace(0, 1, 200)
+    jac = np.stack([np.ones_like(x), x], axis=1)
+    resid = 0.1 * rng.standard_normal(x.size)
+    unc = parameter_uncertainty(jac, resid, np.eye(2), np.array([1.0, 2.0]), ["a", "b"])
+    sigma2 = np.sum(resid**2) / (x.size - 2)
+    cov = sigma2 * np.linalg.inv(jac.T @ jac)
+    np.testing.assert_allclose(unc.std_errors, np.sqrt(np.diag(cov)), rtol=1e-10)
+    assert unc.determined.all()
+    degenerate = np.stack([x, x, np.ones_like(x)], axis=1)  # a and b enter only as a + b
+    unc2 = parameter_uncertainty(degenerate, resid, np.eye(3), np.ones(3), ["a", "b", "c"])
+    assert list(unc2.determined) == [False, False, True]
+
+
+def test_regimes_of_the_fixture_set(fixtures_dir):
+    folder = fixtures_dir / "identification"
+    regimes = {n: classify_regime(ss.load_recording(folder / f"{n}.csv"))
+               for n in ("saw_20V_100Hz_fwd", "saw_40V_100Hz_fwd", "saw_60V_50Hz_bwd",
+                         "sine_40V_50Hz", "step_40V")}
+    assert regimes == {"saw_20V_100Hz_fwd": "scanning", "saw_40V_100Hz_fwd": "stepping_forward",
+                       "saw_60V_50Hz_bwd": "stepping_backward", "sine_40V_50Hz": "sine",
+                       "step_40V": "step"}
+
+
+def test_noise_sigma_ignores_slip_edges_of_fixture_traces(fixtures_dir):
+    # The fixtures carry 1 nm white noise on top of traces full of slip edges, whose
+    # spectrum would swamp a spectral estimate at high drive frequency.
+    for rec in ss.load_recordings(fixtures_dir / "identification"):
+        assert noise_sigma(rec) == pytest.approx(1e-9, rel=0.15), rec.name
+
+
+def test_solver_converges_to_the_least_squares_optimum_and_says_when_it_has_not():
+    from stickslip_jax.identify.solve import solve_least_squares
+
+    t = jnp.linspace(0.0, 1.0, 200)
+    noise = 0.01 * np.random.default_rng(0).standard_normal(200)
+    y = 2.0 * jnp.exp(-1.3 * t) + noise
+
+    def residuals(th):
+        return th[0] * jnp.exp(-th[1] * t) - y
+
+    out = solve_least_squares(residuals, jnp.array([1.0, 0.5]))
+    assert out.converged and out.message.startswith("converged")
+    # The optimum: the gradient of the cost vanishes there.
+    grad = np.asarray(jax.grad(lambda th: jnp.sum(residuals(th) ** 2))(jnp.asarray(out.theta)))
+    assert np.max(np.abs(grad)) < 1e-6
+    assert out.theta == pytest.approx([2.0, 1.3], abs=0.02)
+    assert out.cost_end < out.cost_start
+    short = solve_least_squares(residuals, jnp.array([1.0, 0.5]), max_steps=2)
+    assert not short.converged and "max_steps=2" in short.message
