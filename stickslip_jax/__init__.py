@@ -8,6 +8,7 @@ The library never changes global JAX settings. Enable double precision before us
 """
 
 from .files import InputOverwriteError, OutputExistsError
+from .identify import HysteresisOnlyModel, Identification, fit_hysteresis_only, identify
 from .io import (
     DriveInfo,
     Recording,
@@ -49,6 +50,7 @@ from .model.piezo import PiezoElement
 from .model.profiles import LU2015_TABLE, PROFILES, lu2015_slc1720
 from .model.slider import Slider
 from .model.stages import IdentityInput, IdentityOutput
+from .noise import noise_sigma
 from .params import (
     ParameterError,
     actuator_from_params,
@@ -85,4 +87,5 @@ __all__ = [
     "params_from_actuator", "save_params", "save_recording", "sawtooth", "simulate",
     "simulate_batch", "simulate_recording", "simulate_recordings", "sine", "stack_drives",
     "step", "transition_alpha",
+    "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
 ]

@@ -99,3 +99,52 @@ def test_params_command_lists_and_writes_a_loadable_profile(tmp_path):
     out = tmp_path / "P.json"
     assert run("params", "--out", out).exit_code == 0
     assert float(ss.load_params(out).piezo.Kp) == 2.62e6
+
+
+def _friction_case(fixtures_dir, tmp_path):
+    folder = fixtures_dir / "identification"
+    truth = json.loads((folder / "truth.json").read_text())
+    init = {**truth, "z_ba_forward": truth["z_ba_forward"] * 1.3,
+            "z_ba_backward": truth["z_ba_backward"] * 0.7}
+    (tmp_path / "init.json").write_text(json.dumps(init))
+    data = [folder / "saw_40V_500Hz_fwd.csv", folder / "saw_40V_500Hz_bwd.csv"]
+    return truth, data, tmp_path / "init.json"
+
+
+def test_identify_friction_step_writes_params_fit_and_refuses_to_overwrite(fixtures_dir,
+                                                                          tmp_path):
+    truth, data, init = _friction_case(fixtures_dir, tmp_path)
+    out = tmp_path / "id"
+    args = ("identify", *data, "--out", out, "--init", init, "--fix", "Ms=0.0247",
+            "--steps", "friction", "--no-figures")
+    res = run(*args)
+    assert res.exit_code == 0, res.output
+    assert "converged" in res.output and "[friction]" in res.output
+    fitted = json.loads((out / "params.json").read_text())
+    for name in ("z_ba_forward", "z_ba_backward"):
+        assert fitted[name] == pytest.approx(truth[name], rel=0.01)
+    fit = json.loads((out / "fit.json").read_text())
+    assert fit["converged"] is True and fit["steps"][0]["name"] == "friction"
+    assert fit["recordings"]["saw_40V_500Hz_bwd"]["regime"] == "stepping_backward"
+    again = run(*args)
+    assert again.exit_code == 2 and "--force" in again.output
+    assert run(*args, "--force").exit_code == 0
+
+
+def test_identify_that_does_not_converge_exits_3_without_params_json(fixtures_dir, tmp_path):
+    _, data, init = _friction_case(fixtures_dir, tmp_path)
+    out = tmp_path / "id"
+    res = run("identify", *data, "--out", out, "--init", init, "--fix", "Ms=0.0247",
+              "--steps", "friction", "--max-steps", 1, "--no-figures")
+    assert res.exit_code == 3, res.output
+    assert not (out / "params.json").exists()
+    assert (out / "params.unconverged.json").exists()
+    assert "did not converge" in res.output
+
+
+def test_identify_rejects_unknown_fix_and_step(fixtures_dir, tmp_path):
+    _, data, init = _friction_case(fixtures_dir, tmp_path)
+    res = run("identify", *data, "--out", tmp_path / "x", "--fix", "mass=3")
+    assert res.exit_code == 2 and "mass" in res.output
+    res = run("identify", *data, "--out", tmp_path / "x", "--steps", "dynamics,magic")
+    assert res.exit_code == 2 and "magic" in res.output
