@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import typer
 
-from . import identify_cmd, params_cmd, simulate
+from . import identify_cmd, params_cmd, simulate, sweep_cmd
 
 app = typer.Typer(
     name="stickslip",
@@ -19,6 +19,7 @@ app = typer.Typer(
 app.command("simulate", epilog=simulate.EPILOG)(simulate.simulate_command)
 app.command("params", epilog=params_cmd.EPILOG)(params_cmd.params_command)
 app.command("identify", epilog=identify_cmd.EPILOG)(identify_cmd.identify_command)
+app.command("sweep", epilog=sweep_cmd.EPILOG)(sweep_cmd.sweep_command)
 
 
 def _version(value: bool) -> None:

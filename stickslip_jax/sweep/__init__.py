@@ -1,0 +1,12 @@
+"""Batched sweeps over sawtooth drives: velocity maps and what is built on them."""
+
+from .engine import SweepRun, auto_chunk, run_grid, samples_needed, sawtooth_samples
+from .grid import DriveGrid, parse_values
+from .map import VelocityMap, velocity_map
+from .velocity import PointVelocity, period_end_positions, steady_velocity
+
+__all__ = [
+    "DriveGrid", "PointVelocity", "SweepRun", "VelocityMap", "auto_chunk", "parse_values",
+    "period_end_positions", "run_grid", "samples_needed", "sawtooth_samples",
+    "steady_velocity", "velocity_map",
+]
