@@ -140,3 +140,49 @@ def test_sweep_cli_writes_the_map_and_refuses_to_overwrite(tmp_path):
     assert runner.invoke(app, args).exit_code == 2
     bad = runner.invoke(app, ["sweep", "--amplitudes", "10:20", "--out", str(tmp_path / "b")])
     assert bad.exit_code == 2 and "start:stop:count" in bad.output
+
+
+def test_drive_inversion_reaches_the_asked_velocity_when_simulated():
+    from stickslip_jax.sweep import drive_for_velocity
+
+    act = ss.lu2015_slc1720()
+    for target in (80e-6, -80e-6):
+        choices, unreachable = drive_for_velocity(act, target, frequencies=[100.0, 500.0],
+                                                  amplitudes=np.linspace(10, 100, 10))
+        assert not unreachable and all(c.reached for c in choices)
+        for c in choices:
+            # Independent check: a longer plain simulation of the chosen drive.
+            periods = 20
+            n = int(samples_needed(c.frequency_Hz, periods, FS))
+            back = target < 0
+            _, u = ss.sawtooth(c.amplitude_V, c.frequency_Hz,
+                               direction="backward" if back else "forward", duration_s=n / FS)
+            q = ss.simulate(act, u, dt=1 / FS, drive=ss.DriveContext.make(
+                backward=back, amplitude=c.amplitude_V, frequency=c.frequency_Hz))
+            v = steady_velocity(np.asarray(q), c.frequency_Hz, FS, periods, 4).velocity_m_s
+            assert v == pytest.approx(target, rel=0.05)
+            assert c.step_m == pytest.approx(c.velocity_m_s / c.frequency_Hz, rel=1e-12)
+
+
+def test_parse_velocity_units():
+    from stickslip_jax.sweep import parse_velocity
+
+    assert parse_velocity("50um/s") == pytest.approx(50e-6)
+    assert parse_velocity("0.05 mm/s") == pytest.approx(50e-6)
+    assert parse_velocity("5e-5m/s") == pytest.approx(50e-6)
+    assert parse_velocity("50") == pytest.approx(50e-6)
+    for bad in ("fast", "50 furlong/s", "0um/s"):
+        with pytest.raises(ValueError):
+            parse_velocity(bad)
+
+
+def test_drive_cli_prints_choices_and_writes_json(tmp_path):
+    res = CliRunner().invoke(app, ["drive", "--velocity", "60um/s", "--frequencies", "200",
+                                   "--amplitudes", "10:90:9", "--periods", "6", "--out",
+                                   str(tmp_path / "c.json")])
+    assert res.exit_code == 0, res.output
+    payload = json.loads((tmp_path / "c.json").read_text())
+    (choice,) = payload["choices"]
+    assert choice["reached"] and choice["velocity_m_s"] == pytest.approx(60e-6, rel=0.006)
+    bad = CliRunner().invoke(app, ["drive", "--velocity", "fast"])
+    assert bad.exit_code == 2 and "um/s" in bad.output

@@ -2,11 +2,12 @@
 
 from .engine import SweepRun, auto_chunk, run_grid, samples_needed, sawtooth_samples
 from .grid import DriveGrid, parse_values
+from .inverse import DriveChoice, drive_for_velocity, parse_velocity
 from .map import VelocityMap, velocity_map
 from .velocity import PointVelocity, period_end_positions, steady_velocity
 
 __all__ = [
-    "DriveGrid", "PointVelocity", "SweepRun", "VelocityMap", "auto_chunk", "parse_values",
-    "period_end_positions", "run_grid", "samples_needed", "sawtooth_samples",
-    "steady_velocity", "velocity_map",
+    "DriveChoice", "DriveGrid", "PointVelocity", "SweepRun", "VelocityMap", "auto_chunk",
+    "drive_for_velocity", "parse_values", "parse_velocity", "period_end_positions",
+    "run_grid", "samples_needed", "sawtooth_samples", "steady_velocity", "velocity_map",
 ]

@@ -1,0 +1,121 @@
+"""Sweep scale: velocity maps of 50, 200 and 800 grid points against a serial numba loop.
+
+    .venv/bin/python benchmarks/bench_sweep.py --json out/bench_sweep.json [--repeats 5]
+
+Grids: n_a amplitudes in 10..80 V x n_f frequencies geometric in 50..1000 Hz x both
+directions, 10 periods each at 25 kHz, default profile, DEFAULT_SUBSTEPS RK4
+sub-steps. Each grid is run once to compile, then ``--repeats`` times; medians.
+Reference: the plain numba loop of bench_simulator.py run serially over every point
+of the 200-point grid (forward parameters for all points: the work per sub-step is
+the same). Throughput is compared per state sub-step: wall / (samples x sub-steps).
+Targets (issue #4): 200 points under 10 s after compilation; per-sub-step time of
+the batched sweep at most that of the serial numba loop; time linear in grid size.
+"""
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+from bench_simulator import numba_plain, reference_parameters  # noqa: E402
+
+import stickslip_jax as ss  # noqa: E402
+from stickslip_jax.signals import sawtooth  # noqa: E402
+from stickslip_jax.simulate import DEFAULT_SUBSTEPS  # noqa: E402
+from stickslip_jax.sweep import DriveGrid, samples_needed, velocity_map  # noqa: E402
+
+FS = 25_000.0
+PERIODS = 10
+SIZES = {50: (5, 5), 200: (10, 10), 800: (20, 20)}
+
+
+def grid_of(n_a: int, n_f: int) -> DriveGrid:
+    return DriveGrid.make(np.linspace(10, 80, n_a), np.geomspace(50, 1000, n_f), "both")
+
+
+def time_sweep(grid: DriveGrid, repeats: int) -> dict:
+    act = ss.lu2015_slc1720()
+    t0 = time.perf_counter()
+    first = velocity_map(act, grid, periods=PERIODS)
+    compile_and_first = time.perf_counter() - t0
+    walls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        m = velocity_map(act, grid, periods=PERIODS)
+        walls.append(time.perf_counter() - t0)
+    samples = int(first.run.samples_needed)
+    med = float(np.median(walls))
+    return {"points": len(grid), "samples": samples, "slots": m.run.chunk,
+            "samples_with_padding": int(m.run.samples_simulated),
+            "first_call_s": compile_and_first, "median_s": med, "runs_s": walls,
+            "us_per_substep": med / (samples * DEFAULT_SUBSTEPS) * 1e6}
+
+
+def time_numba(grid: DriveGrid, repeats: int) -> dict:
+    prm, r, w = reference_parameters(ss.lu2015_slc1720())
+    prm = np.asarray(prm)
+    drives = []
+    for a, f in zip(grid.amplitude_V, grid.frequency_Hz, strict=True):
+        n = int(samples_needed(f, PERIODS, FS))
+        drives.append(sawtooth(a, f, duration_s=n / FS)[1])
+    numba_plain(drives[0][:32], 1 / FS, DEFAULT_SUBSTEPS, prm, r, w)  # compile
+    walls = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for u in drives:
+            numba_plain(u, 1 / FS, DEFAULT_SUBSTEPS, prm, r, w)
+        walls.append(time.perf_counter() - t0)
+    samples = int(sum(len(u) for u in drives))
+    med = float(np.median(walls))
+    return {"points": len(grid), "samples": samples, "median_s": med, "runs_s": walls,
+            "us_per_substep": med / (samples * DEFAULT_SUBSTEPS) * 1e6}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args(argv)
+    res = {"platform": platform.platform(), "devices": [str(d) for d in jax.devices()],
+           "jax": jax.__version__, "substeps": DEFAULT_SUBSTEPS, "periods": PERIODS,
+           "sweeps": {}}
+    for n, (n_a, n_f) in SIZES.items():
+        res["sweeps"][str(n)] = time_sweep(grid_of(n_a, n_f), args.repeats)
+        s = res["sweeps"][str(n)]
+        print(f"{n:4d} points: {s['samples']:8d} samples, {s['slots']:3d} slots, first call "
+              f"{s['first_call_s']:.2f} s, median {s['median_s']:.3f} s, "
+              f"{s['us_per_substep']:.3f} µs/sub-step", flush=True)
+    nb = time_numba(grid_of(*SIZES[200]), max(1, args.repeats // 2))
+    res["numba_serial_200"] = nb
+    s200 = res["sweeps"]["200"]
+    ratio = s200["us_per_substep"] / nb["us_per_substep"]
+    lin = {k: v["median_s"] / v["samples"] for k, v in res["sweeps"].items()}
+    res["checks"] = {
+        "grid200_s": s200["median_s"], "grid200_target_s": 10.0,
+        "sweep_over_numba_per_substep": ratio, "target_ratio": 1.0,
+        "seconds_per_sample_by_size": lin,
+    }
+    print(f"numba serial, 200 points: median {nb['median_s']:.3f} s, "
+          f"{nb['us_per_substep']:.3f} µs/sub-step")
+    print(f"200-point grid: {s200['median_s']:.2f} s (target < 10 s: "
+          f"{'PASS' if s200['median_s'] < 10 else 'MISS'}); per sub-step sweep/numba "
+          f"{ratio:.2f} (target ≤ 1: {'PASS' if ratio <= 1 else 'MISS'})")
+    print("time per sample by grid size [µs]: " +
+          ", ".join(f"{k}: {v * 1e6:.2f}" for k, v in lin.items()))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,78 @@
+"""``stickslip drive``: amplitude and frequency choices for a wanted velocity."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from .common import fail, reported_errors, setup_jax
+
+EPILOG = """Examples:
+
+  stickslip drive --velocity 50um/s
+
+  stickslip drive --params P.json --velocity 0.12mm/s --direction backward
+  --frequencies 100,200,500,1000 --out choices.json
+
+For every frequency the amplitude whose simulated steady-state velocity (phase-locked,
+after --settle start-up periods) is the wanted one, found by bracketing on a velocity
+map over --amplitudes and secant refinement, with the step per period it gives.
+"""
+
+
+def drive_command(
+    velocity: str = typer.Option(..., "--velocity", help="Wanted speed, e.g. 50um/s, "
+                                 "0.05mm/s (a bare number is µm/s)."),
+    direction: str = typer.Option("forward", "--direction", help="forward or backward."),
+    params: Path | None = typer.Option(None, "--params", help="Parameters (JSON). Default: "
+                                       "the lu2015_slc1720 profile."),
+    frequencies: str = typer.Option("50,100,200,500,1000", "--frequencies",
+                                    help="Candidate frequencies [Hz] (list or a:b:n)."),
+    amplitudes: str = typer.Option("5:100:20", "--amplitudes", help="Amplitude range [V] "
+                                   "searched (list or a:b:n)."),
+    periods: int = typer.Option(10, "--periods", help="Periods simulated per drive."),
+    settle: int = typer.Option(2, "--settle", help="Start-up periods left out."),
+    out: Path | None = typer.Option(None, "--out", help="Also write the choices as JSON."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing --out."),
+) -> None:
+    """Drives (amplitude per frequency) that move the slider at a wanted velocity."""
+    with reported_errors():
+        setup_jax()
+        from ..files import atomic_write_text, check_output_path
+        from ..model.profiles import lu2015_slc1720
+        from ..params import load_params
+        from ..sweep import drive_for_velocity, parse_values, parse_velocity
+
+        if direction not in ("forward", "backward"):
+            raise fail(f"--direction {direction!r}: choose forward or backward")
+        try:
+            speed = abs(parse_velocity(velocity))
+            freqs = parse_values(frequencies, name="--frequencies")
+            amps = parse_values(amplitudes, name="--amplitudes")
+        except ValueError as err:
+            raise fail(str(err)) from None
+        if out is not None:
+            check_output_path(out, force=force)
+        actuator = load_params(params) if params is not None else lu2015_slc1720()
+        signed = -speed if direction == "backward" else speed
+        choices, unreachable = drive_for_velocity(actuator, signed, frequencies=freqs,
+                                                  amplitudes=amps, periods=periods,
+                                                  settle=settle)
+    typer.echo(f"{direction} at {speed * 1e6:g} µm/s:")
+    typer.echo(f"  {'frequency_Hz':>12s} {'amplitude_V':>12s} {'velocity_um_s':>14s} "
+               f"{'step_nm':>10s}  note")
+    for c in choices:
+        note = "" if c.reached else f"not reached reliably ({c.regime})"
+        typer.echo(f"  {c.frequency_Hz:12.6g} {c.amplitude_V:12.4f} "
+                   f"{c.velocity_m_s * 1e6:14.5g} {c.step_m * 1e9:10.4g}  {note}")
+    for f in unreachable:
+        typer.echo(f"  {f:12.6g} {'-':>12s} {'-':>14s} {'-':>10s}  beyond the amplitude range")
+    if out is not None:
+        payload = {"velocity_m_s": signed, "direction": direction,
+                   "choices": [c.__dict__ for c in choices], "unreachable_Hz": unreachable}
+        atomic_write_text(out, json.dumps(payload, indent=1) + "\n")
+        typer.echo(f"wrote {out}")
+    if not any(c.reached for c in choices):
+        raise typer.Exit(3)
