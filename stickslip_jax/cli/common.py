@@ -13,12 +13,34 @@ EXIT_BAD_INPUT = 2
 EXIT_FAILED = 3
 
 
-def setup_jax() -> None:
+def use_all_cpu_cores() -> None:
+    """Expose every CPU core as a JAX device, so sharded batches (sweeps) use them all.
+
+    XLA runs one small batched computation on one core; as separate devices the cores
+    each take a shard. Must run before JAX starts its backends; a device count already
+    in ``XLA_FLAGS`` is kept, and GPU platforms are unaffected.
+    """
+    if "jax" in sys.modules:  # too late once the backends exist (e.g. in-process tests)
+        with contextlib.suppress(Exception):
+            from jax._src import xla_bridge
+
+            if xla_bridge.backends_are_initialized():
+                return
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags:
+        n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n or 1}"
+
+
+def setup_jax(*, all_cpu_cores: bool = False) -> None:
     """float64 and a persistent compilation cache, so a second run skips compiling.
 
     The cache lives in ``$STICKSLIP_CACHE_DIR`` (default ``~/.cache/stickslip_jax``);
-    set ``STICKSLIP_CACHE_DIR=off`` to disable it.
+    set ``STICKSLIP_CACHE_DIR=off`` to disable it. ``all_cpu_cores``: see
+    :func:`use_all_cpu_cores` (for batched commands).
     """
+    if all_cpu_cores:
+        use_all_cpu_cores()
     import jax
 
     jax.config.update("jax_enable_x64", True)

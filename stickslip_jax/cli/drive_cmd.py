@@ -39,7 +39,7 @@ def drive_command(
 ) -> None:
     """Drives (amplitude per frequency) that move the slider at a wanted velocity."""
     with reported_errors():
-        setup_jax()
+        setup_jax(all_cpu_cores=True)
         from ..files import atomic_write_text, check_output_path
         from ..model.profiles import lu2015_slc1720
         from ..params import load_params

@@ -43,7 +43,7 @@ def sweep_command(
 ) -> None:
     """Steady-state velocity and step per period over a drive grid (velocity map)."""
     with reported_errors():
-        setup_jax()
+        setup_jax(all_cpu_cores=True)
         from ..files import check_output_path
         from ..model.profiles import lu2015_slc1720
         from ..params import load_params
