@@ -38,6 +38,9 @@ def sweep_command(
     chunk: int | None = typer.Option(None, "--chunk", help="At most this many grid points "
                                      "simulated side by side (bounds memory). Default: "
                                      "balanced to the grid."),
+    zba_surface: Path | None = typer.Option(None, "--zba-surface", help="z_ba surface "
+                                            "(zba_surface.json of stickslip zba-surface): "
+                                            "z_ba then depends on each drive."),
     no_figure: bool = typer.Option(False, "--no-figure", help="Skip the heat map."),
     force: bool = typer.Option(False, "--force", help="Replace existing outputs."),
 ) -> None:
@@ -66,6 +69,13 @@ def sweep_command(
         for p in (csv_path, fig_path):
             check_output_path(p, force=force)
         actuator = load_params(params) if params is not None else lu2015_slc1720()
+        if zba_surface is not None:
+            from ..sweep.zba_surface import load_zba_surface, with_zba_surface
+
+            try:
+                actuator = with_zba_surface(actuator, load_zba_surface(zba_surface))
+            except (KeyError, ValueError) as err:
+                raise fail(f"--zba-surface {zba_surface}: {err}") from None
         out.mkdir(parents=True, exist_ok=True)
         typer.echo(f"{len(grid)} grid point(s), {periods} periods each", err=True)
         last = [-1]

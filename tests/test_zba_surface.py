@@ -1,0 +1,134 @@
+"""The z_ba surface: per-recording z_ba in one vmapped solve, a smooth surface over
+amplitude x frequency x direction recovered from a grid made with a *different*
+functional form, and its use by simulate/sweep."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import stickslip_jax as ss
+from stickslip_jax.cli.main import app
+from stickslip_jax.model.friction import AbstractElastoPlastic
+from stickslip_jax.sweep import (
+    DriveGrid,
+    fit_zba_points,
+    fit_zba_surface,
+    load_zba_surface,
+    velocity_map,
+    with_zba_surface,
+)
+from stickslip_jax.synthetic import DriveSpec, simulate_set
+
+AMPS, FREQS = (40.0, 55.0, 70.0), (100.0, 300.0, 600.0)
+
+
+def true_zba(a, f, backward):
+    """Not a quadratic: tanh in amplitude, square root in frequency."""
+    base = jnp.where(backward > 0, 0.46e-6, 0.40e-6)
+    return base * (1 + 0.12 * jnp.tanh((a - 55) / 20)) * (1 - 0.06 * jnp.sqrt(f / 1000))
+
+
+class TrueSurface(AbstractElastoPlastic):
+    rho0: jax.Array
+    rho1: jax.Array
+    rho2: jax.Array
+    z_ba_forward: jax.Array
+    z_ba_backward: jax.Array
+    zba_ratio: jax.Array
+
+    def z_ba(self, drive):
+        return true_zba(drive.amplitude, drive.frequency, drive.backward)
+
+    def zss_magnitude(self, xdot, drive):
+        return self.z_ba(drive) / self.zba_ratio
+
+
+def truth_actuator():
+    base = ss.lu2015_slc1720()
+    f = base.friction
+    return eqx.tree_at(lambda a: a.friction, base,
+                       TrueSurface(f.rho0, f.rho1, f.rho2, f.z_ba_forward, f.z_ba_backward,
+                                   f.zba_ratio))
+
+
+@pytest.fixture(scope="module")
+def grid_recordings():
+    specs = [DriveSpec("sawtooth", a, f, d, 4 / f) for d in ("forward", "backward")
+             for a in AMPS for f in FREQS]
+    specs.append(DriveSpec("sawtooth", 10.0, 100.0, "forward", 4 / 100.0))  # pure stick
+    return simulate_set(truth_actuator(), specs, noise_m=1e-9, seed=3)
+
+
+@pytest.fixture(scope="module")
+def fitted(grid_recordings):
+    points = fit_zba_points(ss.lu2015_slc1720(), grid_recordings)
+    return points, fit_zba_surface(points)
+
+
+def test_zba_per_recording_is_recovered_in_one_batched_solve(fitted):
+    points, _ = fitted
+    stepping = points.amplitude_V >= 40
+    truth = np.asarray(true_zba(points.amplitude_V, points.frequency_Hz,
+                                points.backward.astype(float)))
+    assert np.all(points.converged[stepping])
+    err = points.z_ba_m[stepping] / truth[stepping] - 1
+    assert np.max(np.abs(err)) < 0.01, err
+    # The errors are consistent with the standard errors the fit reports.
+    assert np.all(np.abs(points.z_ba_m - truth)[stepping] < 6 * points.std_error_m[stepping])
+    assert np.all(points.nrmse[stepping] < 1e-3)
+    # At 10 V the contact never leaves the elastic region: z_ba has no effect, the
+    # point is flagged and kept out of the surface.
+    (stick,) = np.flatnonzero(points.amplitude_V == 10.0)
+    assert not points.determined[stick]
+    assert points.determined[stepping].all()
+
+
+def test_surface_recovers_a_different_functional_form_within_5_percent(fitted):
+    _, fit = fitted
+    a, f = np.meshgrid(np.linspace(40, 70, 9), np.geomspace(100, 600, 9))
+    for back in (0.0, 1.0):
+        pred = jax.vmap(lambda x, y, b=back: fit.surface(x, y, b))(jnp.asarray(a.ravel()),
+                                                                   jnp.asarray(f.ravel()))
+        err = np.asarray(pred) / np.asarray(true_zba(a.ravel(), f.ravel(), back)) - 1
+        assert np.max(np.abs(err)) < 0.05, (back, err)
+    for name in ("forward", "backward"):
+        st = fit.stats[name]
+        assert st["supported"] and st["r2"] > 0.99 and st["loo_rms_rel"] < 0.02
+        assert st["amplitude_range_V"] == [40.0, 70.0]
+    assert fit.stats["forward"]["excluded_undetermined"] == 1
+
+
+def test_a_sweep_with_the_surface_reproduces_the_true_velocities(fitted):
+    _, fit = fitted
+    grid = DriveGrid.make([45.0, 65.0], [150.0, 500.0], "both")
+    kw = dict(periods=4, settle=1)
+    got = velocity_map(with_zba_surface(ss.lu2015_slc1720(), fit.surface), grid, **kw)
+    want = velocity_map(truth_actuator(), grid, **kw)
+    np.testing.assert_allclose(got.velocity_m_s, want.velocity_m_s, rtol=0.05)
+    plain = velocity_map(ss.lu2015_slc1720(), grid, **kw)  # without the surface: far off
+    assert np.max(np.abs(plain.velocity_m_s / want.velocity_m_s - 1)) > 0.05
+
+
+def test_zba_surface_cli_writes_points_surface_and_figure(grid_recordings, tmp_path):
+    data = tmp_path / "grid"
+    data.mkdir()
+    for r in grid_recordings[:6] + grid_recordings[9:15]:
+        ss.save_recording(r, data / f"{r.name}.csv")
+    out = tmp_path / "zba"
+    res = CliRunner().invoke(app, ["zba-surface", str(data), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    lines = (out / "zba_points.csv").read_text().splitlines()
+    assert len(lines) == 13 and lines[0].startswith("recording,amplitude_V,frequency_Hz")
+    surface = load_zba_surface(out / "zba_surface.json")
+    assert float(surface(55.0, 300.0, 0.0)) == pytest.approx(
+        float(true_zba(55.0, 300.0, 0.0)), rel=0.05)
+    assert (out / "zba_surface.png").stat().st_size > 10_000
+    res = CliRunner().invoke(app, ["sweep", "--amplitudes", "50", "--frequencies", "200",
+                                   "--periods", "3", "--settle", "1", "--zba-surface",
+                                   str(out / "zba_surface.json"), "--out", str(tmp_path / "s"),
+                                   "--no-figure"])
+    assert res.exit_code == 0, res.output
+    assert CliRunner().invoke(app, ["zba-surface", str(data), "--out", str(out)]).exit_code == 2
