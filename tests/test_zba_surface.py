@@ -132,3 +132,24 @@ def test_zba_surface_cli_writes_points_surface_and_figure(grid_recordings, tmp_p
                                    "--no-figure"])
     assert res.exit_code == 0, res.output
     assert CliRunner().invoke(app, ["zba-surface", str(data), "--out", str(out)]).exit_code == 2
+
+
+def test_simulate_cli_uses_the_surface_at_the_recordings_drive(fitted, tmp_path):
+    _, fit = fitted
+    fit.save(tmp_path / "s.json")
+    # Backward at 65 V, 500 Hz, where the true z_ba is ~17 % above the profile's.
+    base = ["simulate", "--waveform", "sawtooth", "--amplitude", "65", "--frequency", "500",
+            "--direction", "backward", "--duration", "0.02"]
+    r1 = CliRunner().invoke(app, base + ["--out", str(tmp_path / "a.csv")])
+    r2 = CliRunner().invoke(app, base + ["--out", str(tmp_path / "b.csv"), "--zba-surface",
+                                         str(tmp_path / "s.json")])
+    assert r1.exit_code == 0 and r2.exit_code == 0, r1.output + r2.output
+    plain = ss.load_recording(tmp_path / "a.csv").position_m
+    with_surface = ss.load_recording(tmp_path / "b.csv").position_m
+    u = ss.sawtooth(65.0, 500.0, direction="backward", duration_s=0.02)[1]
+    truth = ss.simulate(truth_actuator(), u, dt=4e-5,
+                        drive=ss.DriveContext.make(True, 65.0, 500.0))
+    scale = np.ptp(np.asarray(truth))
+    err_surface = np.sqrt(np.mean((with_surface - np.asarray(truth)) ** 2)) / scale
+    err_plain = np.sqrt(np.mean((plain - np.asarray(truth)) ** 2)) / scale
+    assert err_surface < 0.002 and err_surface < err_plain / 5, (err_surface, err_plain)

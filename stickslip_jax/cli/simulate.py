@@ -53,6 +53,9 @@ def simulate_command(
     t0: float = typer.Option(2e-3, help="Step time of a step drive [s]."),
     unit: Unit = typer.Option(Unit.um, help="Unit of the written position column."),
     substeps: int = typer.Option(0, help="RK4 sub-steps per sample (0: the default)."),
+    zba_surface: Path | None = typer.Option(
+        None, "--zba-surface", help="z_ba surface JSON (stickslip zba-surface): z_ba then "
+        "depends on the drive's amplitude, frequency and direction."),
     plot: Path | None = typer.Option(None, "--plot", help="Also draw the trace to this image."),
     force: bool = typer.Option(False, "--force", help="Replace existing output files."),
 ) -> None:
@@ -78,6 +81,13 @@ def simulate_command(
         from ..simulate import DEFAULT_SUBSTEPS, simulate_recording
 
         actuator = load_params(params) if params is not None else lu2015_slc1720()
+        if zba_surface is not None:
+            from ..sweep.zba_surface import load_zba_surface, with_zba_surface
+
+            try:
+                actuator = with_zba_surface(actuator, load_zba_surface(zba_surface))
+            except (KeyError, ValueError) as err:
+                raise fail(f"--zba-surface {zba_surface}: {err}") from None
         with status(f"simulating {rec.n} samples ({rec.regime})..."):
             q = simulate_recording(actuator, rec, substeps=substeps or DEFAULT_SUBSTEPS)
         result = rec.with_position_m(q, unit=unit.value)
