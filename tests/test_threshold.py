@@ -36,3 +36,20 @@ def test_zero_amplitude_threshold_moves_with_z_ba():
     # A larger breakaway strain needs a larger drive before the contact slips.
     assert thresholds[0] < thresholds[1] < thresholds[2], thresholds
     assert thresholds[2] / thresholds[0] > 1.3, thresholds
+
+
+def test_ratio_study_thresholds_fall_as_z_ss_approaches_z_ba(tmp_path):
+    from stickslip_jax.sweep.threshold import plot_ratio_study, ratio_study
+
+    amps = np.linspace(4.0, 60.0, 15)
+    study = ratio_study(ss.lu2015_slc1720(), (0.4, 0.667, 0.95), amps, 500.0)
+    thresholds = [study[r][1] for r in (0.4, 0.667, 0.95)]
+    # Measured when written: 22.3, 20.2, 16.4 V; steps at 60 V: 338, 622, 804 nm.
+    assert thresholds[0] > thresholds[1] > thresholds[2], thresholds
+    assert study[0.4][0][-1] < study[0.667][0][-1] < study[0.95][0][-1]
+    plot_ratio_study(amps, study, frequency_Hz=500.0, path=tmp_path / "fig5.png")
+    assert (tmp_path / "fig5.png").stat().st_size > 10_000
+    with pytest.raises(ValueError, match="elasto-plastic"):
+        lugre = eqx.tree_at(lambda a: a.friction, ss.lu2015_slc1720(),
+                            ss.LuGre(3.5e5, 1.0, 0.0, 0.2, 0.24, 1e-3))
+        ratio_study(lugre, (0.5,), amps, 500.0)

@@ -37,3 +37,54 @@ def zero_amplitude_threshold(amplitudes, steps, *, min_step: float = 1e-9) -> fl
     if k == 0:
         return float(a[0])
     return float(a[k - 1] + (min_step - s[k - 1]) * (a[k] - a[k - 1]) / (s[k] - s[k - 1]))
+
+
+def ratio_study(actuator: Actuator, ratios, amplitudes, frequency_Hz: float, *,
+                direction: str = "forward", min_step: float = 2e-9, periods: int = 6
+                ) -> dict[float, tuple[np.ndarray, float]]:
+    """Step-vs-amplitude curve [m] and 0-amplitude threshold [V] for each z_ba/z_ss
+    ratio (z_ba kept), as in Nguyen 2012 Fig. 5. Requires an elasto-plastic law."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    if not hasattr(actuator.friction, "zba_ratio"):
+        raise ValueError("the ratio study needs an elasto-plastic friction law")
+    out = {}
+    for r in ratios:
+        act = eqx.tree_at(lambda a: a.friction.zba_ratio, actuator, jnp.asarray(float(r)))
+        steps = step_vs_amplitude(act, amplitudes, frequency_Hz, direction=direction,
+                                  periods=periods)
+        out[float(r)] = (steps, zero_amplitude_threshold(amplitudes, steps, min_step=min_step))
+    return out
+
+
+def plot_ratio_study(amplitudes, study: dict, *, frequency_Hz: float, path=None,
+                     extra: dict | None = None):
+    """Step per period [nm] against amplitude [V], one line per ratio with its
+    threshold marked; ``extra`` adds labelled curves (e.g. LuGre). Returns the figure."""
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    colours = plt.get_cmap("plasma")(np.linspace(0, 0.85, max(len(study), 1)))
+    for colour, (ratio, (steps, thr)) in zip(colours, study.items(), strict=True):
+        ax.plot(amplitudes, np.asarray(steps) * 1e9, "-o", ms=3, color=colour,
+                label=f"z_ba/z_ss = {ratio:g}: 0-amplitude {thr:.1f} V")
+        if np.isfinite(thr):
+            ax.axvline(thr, color=colour, lw=0.8, ls=":")
+    for label, steps in (extra or {}).items():
+        ax.plot(amplitudes, np.asarray(steps) * 1e9, "k--", lw=1, label=label)
+    ax.set_xlabel("amplitude [V]")
+    ax.set_ylabel("step per period [nm]")
+    ax.set_title(f"step length vs amplitude at {frequency_Hz:g} Hz (Nguyen 2012 Fig. 5)",
+                 fontsize=10)
+    ax.grid(alpha=0.25)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=130)
+        plt.close(fig)
+    return fig
