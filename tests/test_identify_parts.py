@@ -99,6 +99,12 @@ def test_bucketed_simulation_equals_one_padded_batch(fixtures_dir):
     q = np.asarray(simulate_dataset(act, data, substeps=4))
     q1 = np.asarray(simulate_dataset(act, replace(data, buckets=()), substeps=4))
     np.testing.assert_allclose(q * data.mask, q1 * data.mask, rtol=1e-12, atol=1e-20)
+    # Recordings one after the other (CPU default) or vmapped: the same numbers.
+    for batching in ("map", "vmap"):
+        qb = np.asarray(simulate_dataset(act, data, substeps=4, batching=batching))
+        np.testing.assert_allclose(qb * data.mask, q * data.mask, rtol=1e-12, atol=1e-20)
+    with pytest.raises(ValueError, match="batching"):
+        simulate_dataset(act, data, batching="pmap")
 
 
 def test_parameter_map_starts_at_the_start_and_keeps_pi_monotone():

@@ -19,13 +19,27 @@ from .dataset import Dataset
 from .parameters import ParameterMap
 
 
-def simulate_dataset(actuator, data: Dataset, *, substeps: int = DEFAULT_SUBSTEPS):
+def default_batching() -> str:
+    """``"map"`` on CPU, ``"vmap"`` on accelerators (see :func:`simulate_dataset`)."""
+    return "map" if jax.default_backend() == "cpu" else "vmap"
+
+
+def simulate_dataset(actuator, data: Dataset, *, substeps: int = DEFAULT_SUBSTEPS,
+                     batching: str | None = None):
     """Model output q [m] for every (padded) recording of ``data``, shape (B, T).
 
-    Each length bucket of ``data`` is one vmapped scan over its own padded length;
-    the outputs are padded (last value repeated) to the common length and put back in
-    recording order.
+    Each length bucket of ``data`` is one scan over its own padded length; the
+    outputs are padded (last value repeated) to the common length and put back in
+    recording order. Within a bucket the recordings go through ``jax.vmap``
+    (``batching="vmap"``, for accelerators) or one after the other through
+    ``jax.lax.map`` (``"map"``, the CPU default): on CPU a forward-mode Jacobian with a
+    batch of recordings *and* a batch of tangents runs ~4x slower than the same
+    Jacobian taken recording by recording (measured: 17 fixture recordings, 42
+    parameters, 5.7 s vs 1.4 s), while the plain forward costs the same either way.
     """
+    batching = batching or default_batching()
+    if batching not in ("map", "vmap"):
+        raise ValueError(f"batching must be 'map' or 'vmap', got {batching!r}")
 
     def one(u, dt, drive):
         q = _model_output(actuator, u, dt, drive, substeps, RK4)
@@ -37,8 +51,11 @@ def simulate_dataset(actuator, data: Dataset, *, substeps: int = DEFAULT_SUBSTEP
     for idx, length in buckets:
         sel = np.asarray(idx)
         drives = jax.tree_util.tree_map(lambda x, s=sel: x[s], data.drives)
-        q = jax.vmap(one)(jnp.asarray(data.voltages[sel, :length]), jnp.asarray(data.dt[sel]),
-                          drives)
+        args = (jnp.asarray(data.voltages[sel, :length]), jnp.asarray(data.dt[sel]), drives)
+        if batching == "vmap":
+            q = jax.vmap(one)(*args)
+        else:
+            q = jax.lax.map(lambda a: one(*a), args)
         parts.append(jnp.pad(q, ((0, 0), (0, total - length)), mode="edge"))
         order += list(idx)
     q = jnp.concatenate(parts, axis=0)
