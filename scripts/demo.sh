@@ -16,7 +16,7 @@ done
 "$BIN/python" scripts/compare_traces.py fixtures/reference "$OUT"
 
 echo
-echo "== identify fixtures/identification (about 3-4 minutes on two cores) =="
+echo "== identify fixtures/identification (about 2 minutes on two cores) =="
 "$BIN/stickslip" identify fixtures/identification --out "$OUT/identify" --fix Ms=0.0247 --force
 "$BIN/python" scripts/compare_params.py "$OUT/identify/params.json" \
   fixtures/identification/truth.json
