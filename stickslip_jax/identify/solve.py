@@ -63,7 +63,7 @@ def dense_jacobian(fn: Callable):
 
 def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float = 1e-4,
                         atol: float = 1e-6, ftol: float | None = None, window: int = 5,
-                        label: str = "fit",
+                        scale_by_jacobian: bool = True, label: str = "fit",
                         echo: Callable[[str], None] | None = None) -> SolveResult:
     """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
 
@@ -82,9 +82,36 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
       a standard error; this ends fits whose poorly determined directions (e.g. a PI
       weight) keep drifting without effect, which the θ test alone would hold open.
 
+    ``scale_by_jacobian`` (MINPACK's and scipy's ``x_scale='jac'``): the solve runs in
+    φ = d·(θ − θ0) with d the column norms of the Jacobian at the start, so every
+    direction has unit sensitivity and the LM damping (λ = 1 at the start) is on the
+    scale of JᵀJ from the first step. Without it a well-scaled residual (cost ~1e-5)
+    starts with a damping thousands of times too strong and creeps for ~10 steps. The
+    Cauchy tolerances then apply to φ: atol = 1e-6 is a change worth 1e-6 of one
+    unit-sensitivity direction.
+
     Never raises on failure: the verdict is in the result.
     """
     theta = jnp.asarray(theta0, dtype=float)
+    user_residuals = residuals
+    if scale_by_jacobian and theta.size:
+        jac0 = np.asarray(jax.jit(jax.jacfwd(residuals))(theta))
+        d = np.sqrt(np.sum(jac0**2, axis=0))
+        d = np.where(np.isfinite(d) & (d > 1e-12 * max(float(d.max()), 1e-300)), d,
+                     max(float(d.max()), 1.0))
+        d = jnp.asarray(d)
+        origin = theta
+
+        def residuals(phi):  # noqa: F811 - the scaled problem replaces the user's
+            return user_residuals(origin + phi / d)
+
+        theta = jnp.zeros_like(theta)
+
+        def to_theta(phi):
+            return np.asarray(origin + jnp.asarray(phi) / d)
+    else:
+        def to_theta(phi):
+            return np.asarray(phi)
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm)
     start = time.perf_counter()
     dense = dense_jacobian(residuals)
@@ -134,5 +161,5 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
             break
     wall = time.perf_counter() - start
     cost_fn = jax.jit(lambda th: jnp.sum(residuals(th) ** 2))
-    return SolveResult(np.asarray(y), ok, message, n, wall, float(cost_fn(theta)),
+    return SolveResult(to_theta(y), ok, message, n, wall, float(cost_fn(theta)),
                        float(cost_fn(y)))
