@@ -88,3 +88,20 @@ def status(message: str):
     else:
         typer.echo(message, err=True)
         yield
+
+
+def load_actuator(params: Path | None, zba_surface: Path | None = None):
+    """The actuator of ``--params`` (default profile without it), with its z_ba read
+    from ``--zba-surface`` when given. Bad files raise user errors (exit 2)."""
+    from ..model.profiles import lu2015_slc1720
+    from ..params import load_params
+
+    actuator = load_params(params) if params is not None else lu2015_slc1720()
+    if zba_surface is not None:
+        from ..sweep.zba_surface import load_zba_surface, with_zba_surface
+
+        try:
+            actuator = with_zba_surface(actuator, load_zba_surface(zba_surface))
+        except (KeyError, ValueError) as err:
+            raise fail(f"--zba-surface {zba_surface}: {err}") from None
+    return actuator

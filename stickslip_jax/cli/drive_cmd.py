@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, reported_errors, setup_jax
+from .common import fail, load_actuator, reported_errors, setup_jax
 
 EPILOG = """Examples:
 
@@ -41,8 +41,6 @@ def drive_command(
     with reported_errors():
         setup_jax(all_cpu_cores=True)
         from ..files import atomic_write_text, check_output_path
-        from ..model.profiles import lu2015_slc1720
-        from ..params import load_params
         from ..sweep import drive_for_velocity, parse_values, parse_velocity
 
         if direction not in ("forward", "backward"):
@@ -55,7 +53,7 @@ def drive_command(
             raise fail(str(err)) from None
         if out is not None:
             check_output_path(out, force=force)
-        actuator = load_params(params) if params is not None else lu2015_slc1720()
+        actuator = load_actuator(params)
         signed = -speed if direction == "backward" else speed
         choices, unreachable = drive_for_velocity(actuator, signed, frequencies=freqs,
                                                   amplitudes=amps, periods=periods,

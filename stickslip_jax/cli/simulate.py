@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, reported_errors, setup_jax, status
+from .common import fail, load_actuator, reported_errors, setup_jax, status
 
 
 class Waveform(StrEnum):
@@ -63,8 +63,6 @@ def simulate_command(
     with reported_errors():
         from .. import io, signals
         from ..files import check_output_path
-        from ..model.profiles import lu2015_slc1720
-        from ..params import load_params
 
         inputs = [p for p in (params, voltage_from) if p is not None]
         check_output_path(out, force=force, inputs=inputs)
@@ -80,14 +78,7 @@ def simulate_command(
         setup_jax()
         from ..simulate import DEFAULT_SUBSTEPS, simulate_recording
 
-        actuator = load_params(params) if params is not None else lu2015_slc1720()
-        if zba_surface is not None:
-            from ..sweep.zba_surface import load_zba_surface, with_zba_surface
-
-            try:
-                actuator = with_zba_surface(actuator, load_zba_surface(zba_surface))
-            except (KeyError, ValueError) as err:
-                raise fail(f"--zba-surface {zba_surface}: {err}") from None
+        actuator = load_actuator(params, zba_surface)
         with status(f"simulating {rec.n} samples ({rec.regime})..."):
             q = simulate_recording(actuator, rec, substeps=substeps or DEFAULT_SUBSTEPS)
         result = rec.with_position_m(q, unit=unit.value)

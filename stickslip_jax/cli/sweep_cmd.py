@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, reported_errors, setup_jax
+from .common import fail, load_actuator, reported_errors, setup_jax
 
 EPILOG = """Examples:
 
@@ -48,8 +48,6 @@ def sweep_command(
     with reported_errors():
         setup_jax(all_cpu_cores=True)
         from ..files import check_output_path
-        from ..model.profiles import lu2015_slc1720
-        from ..params import load_params
         from ..sweep import DriveGrid, parse_values, velocity_map
 
         try:
@@ -68,14 +66,7 @@ def sweep_command(
         csv_path, fig_path = out / "velocity_map.csv", out / "velocity_map.png"
         for p in (csv_path, fig_path):
             check_output_path(p, force=force)
-        actuator = load_params(params) if params is not None else lu2015_slc1720()
-        if zba_surface is not None:
-            from ..sweep.zba_surface import load_zba_surface, with_zba_surface
-
-            try:
-                actuator = with_zba_surface(actuator, load_zba_surface(zba_surface))
-            except (KeyError, ValueError) as err:
-                raise fail(f"--zba-surface {zba_surface}: {err}") from None
+        actuator = load_actuator(params, zba_surface)
         out.mkdir(parents=True, exist_ok=True)
         typer.echo(f"{len(grid)} grid point(s), {periods} periods each", err=True)
         last = [-1]

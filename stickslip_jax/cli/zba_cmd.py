@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, reported_errors, setup_jax
+from .common import fail, load_actuator, reported_errors, setup_jax
 
 EPILOG = """Examples:
 
@@ -36,15 +36,13 @@ def zba_command(
         setup_jax()
         from ..files import atomic_write_text, check_output_path
         from ..io import load_recordings
-        from ..model.profiles import lu2015_slc1720
-        from ..params import load_params
         from ..sweep.zba_surface import fit_zba_points, fit_zba_surface, plot_zba_surface
 
         recordings = load_recordings(data)
         paths = [out / n for n in ("zba_points.csv", "zba_surface.json", "zba_surface.png")]
         for p in paths:
             check_output_path(p, force=force, inputs=[r.source for r in recordings if r.source])
-        actuator = load_params(params) if params is not None else lu2015_slc1720()
+        actuator = load_actuator(params)
         typer.echo(f"{len(recordings)} recording(s); fitting z_ba per sawtooth recording...",
                    err=True)
         try:

@@ -41,14 +41,7 @@ class HysteresisOnlyModel(eqx.Module):
 
     def output(self, voltage) -> jax.Array:
         """Sensor output at every sample of ``voltage`` [V], from rest at sample 0."""
-        pi = self.hysteresis
-        u = jnp.asarray(voltage, dtype=float)
-
-        def step(memory, uk):
-            memory = pi.update(memory, uk)
-            return memory, pi.output(memory, uk)
-
-        _, gamma = jax.lax.scan(step, pi.initial_memory(u[0]), u)
+        gamma = self.hysteresis.along(voltage)
         o = self.sign * gamma + self.offset
         previous = jnp.concatenate([o[:1], o[:-1]])
         return (1.0 - self.lag) * o + self.lag * previous

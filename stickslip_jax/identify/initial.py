@@ -4,8 +4,6 @@ gain from a slow sine (or the step), and the stiffnesses and dampings from the m
 from __future__ import annotations
 
 import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ..io import Recording
@@ -41,14 +39,7 @@ def pi_over_range(actuator: Actuator, recordings, n: int) -> Actuator:
 def stroke_along(actuator: Actuator, voltage_V) -> np.ndarray:
     """Free stroke Γ [m] of the hysteresis at each sample of ``voltage_V`` [V], from rest
     at the first sample (the input stage is not applied)."""
-    pi = actuator.hysteresis
-    u = jnp.asarray(voltage_V, dtype=float)
-
-    def step(memory, uk):
-        memory = pi.update(memory, uk)
-        return memory, pi.output(memory, uk)
-
-    _, gamma = jax.lax.scan(step, pi.initial_memory(u[0]), u)
+    gamma = actuator.hysteresis.along(voltage_V)
     return np.asarray(gamma)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -57,6 +58,17 @@ class PrandtlIshlinskii(AbstractHysteresis):
 
     def update(self, memory, u):
         return jnp.clip(memory, u - self.thresholds, u + self.thresholds)
+
+    def along(self, voltage):
+        """Output Γ at every sample of ``voltage`` [V], from rest at the first sample
+        (each sample commits the memory; no dynamics) [units of the weights x V]."""
+        u = jnp.asarray(voltage, dtype=float)
+
+        def step(memory, uk):
+            memory = self.update(memory, uk)
+            return memory, self.output(memory, uk)
+
+        return jax.lax.scan(step, self.initial_memory(u[0]), u)[1]
 
     def is_monotone(self) -> bool:
         """True when every partial sum of the weights is positive (loop is monotone)."""

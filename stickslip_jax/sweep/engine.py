@@ -21,6 +21,7 @@ signal. The sweep output is the model output q = x1 + x2 before any output map
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -126,8 +127,6 @@ def run_grid(actuator: Actuator, grid: DriveGrid, *, periods: int = 10,
     ``chunk`` (slots side by side) defaults to :func:`auto_chunk`; a given value is an
     upper bound on memory (state and one segment of output per slot).
     """
-    import time
-
     if periods < 1:
         raise ValueError("periods must be ≥ 1")
     n_points = len(grid)

@@ -77,8 +77,8 @@ def drive_for_velocity(actuator: Actuator, velocity_m_s: float, *, frequencies,
         if ok.size == 0:
             unreachable.append(float(f))
             continue
-        k = max(int(ok[0]), 1) if ok[0] > 0 else 0
-        below = k - 1 if k > 0 else 0  # reached at the lowest amplitude: no bracket
+        k = int(ok[0])
+        below = max(k - 1, 0)  # reached at the lowest amplitude: no bracket
         brackets.append((amps[below], amps[k], speed[j, below], speed[j, k]))
         keep.append(j)
     if not keep:
