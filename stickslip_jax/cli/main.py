@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import typer
 
-from . import drive_cmd, identify_cmd, params_cmd, simulate, sweep_cmd, zba_cmd
+from . import diagnose_cmd, drive_cmd, identify_cmd, params_cmd, simulate, sweep_cmd, zba_cmd
 
 app = typer.Typer(
     name="stickslip",
@@ -22,6 +22,7 @@ app.command("identify", epilog=identify_cmd.EPILOG)(identify_cmd.identify_comman
 app.command("sweep", epilog=sweep_cmd.EPILOG)(sweep_cmd.sweep_command)
 app.command("drive", epilog=drive_cmd.EPILOG)(drive_cmd.drive_command)
 app.command("zba-surface", epilog=zba_cmd.EPILOG)(zba_cmd.zba_command)
+app.command("diagnose", epilog=diagnose_cmd.EPILOG)(diagnose_cmd.diagnose_command)
 
 
 def _version(value: bool) -> None:

@@ -32,20 +32,22 @@ SCALE_INVARIANT = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "rho1", "rho2")
 """Quantities only identifiable up to one common factor from position data."""
 
 
+_PATHS = {
+    "Mp": lambda a: a.piezo.Mp, "Dp": lambda a: a.piezo.Dp, "Kp": lambda a: a.piezo.Kp,
+    "Ms": lambda a: a.slider.Ms, "Ds": lambda a: a.slider.Ds,
+    "rho0": lambda a: a.friction.rho0, "rho1": lambda a: a.friction.rho1,
+    "rho2": lambda a: a.friction.rho2,
+    "z_ba_forward": lambda a: a.friction.z_ba_forward,
+    "z_ba_backward": lambda a: a.friction.z_ba_backward,
+    "zba_ratio": lambda a: a.friction.zba_ratio,
+    "pi_weights": lambda a: a.hysteresis.weights,
+}
+
+
 def _getter(name: str) -> Callable[[Actuator], jax.Array]:
-    paths = {
-        "Mp": lambda a: a.piezo.Mp, "Dp": lambda a: a.piezo.Dp, "Kp": lambda a: a.piezo.Kp,
-        "Ms": lambda a: a.slider.Ms, "Ds": lambda a: a.slider.Ds,
-        "rho0": lambda a: a.friction.rho0, "rho1": lambda a: a.friction.rho1,
-        "rho2": lambda a: a.friction.rho2,
-        "z_ba_forward": lambda a: a.friction.z_ba_forward,
-        "z_ba_backward": lambda a: a.friction.z_ba_backward,
-        "zba_ratio": lambda a: a.friction.zba_ratio,
-        "pi_weights": lambda a: a.hysteresis.weights,
-    }
-    if name not in paths:
-        raise KeyError(f"{name!r} is not a fittable parameter; fittable: {', '.join(paths)}")
-    return paths[name]
+    if name not in _PATHS:
+        raise KeyError(f"{name!r} is not a fittable parameter; fittable: {', '.join(_PATHS)}")
+    return _PATHS[name]
 
 
 FITTABLE = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "rho1", "rho2", "z_ba_forward",
@@ -69,6 +71,22 @@ _SOFTPLUS_DEFAULT_SCALE = {"rho1": 1.0, "rho2": 1.0}  # N·s/m
 
 
 @dataclass(frozen=True)
+class ParameterSpec:
+    """How to fit a quantity that is not one of :data:`FITTABLE` (model extensions).
+
+    ``getter`` selects the leaf in the :class:`Actuator`; ``kind`` is one of ``log``,
+    ``softplus`` (non-negative, may start at 0), ``linear`` (signed:
+    ``value = start + scale·θ``); ``scale`` sets the θ unit of ``linear`` and
+    ``softplus`` parameters [parameter unit]; ``unit`` is for reports.
+    """
+
+    getter: Callable[[Actuator], jax.Array]
+    kind: str = "log"
+    scale: float = 1.0
+    unit: str = "-"
+
+
+@dataclass(frozen=True)
 class FreeParameter:
     """One fitted quantity (scalar or vector) and its transform from θ."""
 
@@ -76,6 +94,7 @@ class FreeParameter:
     kind: str
     size: int
     start: np.ndarray  # physical start value(s)
+    scale: float | None = None  # θ unit of linear/softplus kinds
 
     def to_physical(self, theta):
         """Physical value(s) from the slice ``theta`` of the parameter vector."""
@@ -84,9 +103,11 @@ class FreeParameter:
             value = start * jnp.exp(theta)
         elif self.kind == "logit":
             value = jax.nn.sigmoid(theta + jnp.log(start / (1.0 - start)))
+        elif self.kind == "linear":
+            value = start + self.scale * theta
         elif self.kind == "softplus":
             scale = float(self.start) if float(self.start) > 0 else \
-                _SOFTPLUS_DEFAULT_SCALE[self.name]
+                (self.scale or _SOFTPLUS_DEFAULT_SCALE[self.name])
             theta0 = np.log(np.expm1(float(self.start) / scale)) if float(self.start) > 0 \
                 else -20.0
             value = scale * jax.nn.softplus(theta + theta0)
@@ -105,14 +126,21 @@ class ParameterMap(eqx.Module):
 
     start: Actuator
     free: tuple[FreeParameter, ...] = eqx.field(static=True)
+    getters: tuple = eqx.field(static=True, default=())
 
     @staticmethod
-    def make(start: Actuator, names: Sequence[str]) -> ParameterMap:
-        """Free parameters ``names`` (order kept) around the actuator ``start``."""
-        free = []
+    def make(start: Actuator, names: Sequence[str],
+             specs: dict[str, ParameterSpec] | None = None) -> ParameterMap:
+        """Free parameters ``names`` (order kept) around the actuator ``start``;
+        ``specs`` describes names that are not in :data:`FITTABLE`."""
+        specs = specs or {}
+        free, getters = [], []
         for name in names:
-            value = np.asarray(_getter(name)(start), dtype=float)
-            kind = _kind(name)
+            spec = specs.get(name)
+            getter = spec.getter if spec else _getter(name)
+            getters.append(getter)
+            value = np.asarray(getter(start), dtype=float)
+            kind = spec.kind if spec else _kind(name)
             if kind == "log" and np.any(value <= 0):
                 raise ValueError(f"{name} must start positive to be fitted, got {value}")
             if kind == "pi_cumlog" and np.any(np.cumsum(value) <= 0):
@@ -120,8 +148,9 @@ class ParameterMap(eqx.Module):
                                  "pi_weights is ≤ 0)")
             if kind == "logit" and not 0 < float(value) < 1:
                 raise ValueError(f"{name} must start inside (0, 1) to be fitted, got {value}")
-            free.append(FreeParameter(name, kind, int(value.size), value))
-        return ParameterMap(start, tuple(free))
+            free.append(FreeParameter(name, kind, int(value.size), value,
+                                      spec.scale if spec else None))
+        return ParameterMap(start, tuple(free), tuple(getters))
 
     @property
     def size(self) -> int:
@@ -154,9 +183,9 @@ class ParameterMap(eqx.Module):
         """The actuator at ``theta``."""
         act = self.start
         sl = self.slices()
-        for p in self.free:
+        for p, getter in zip(self.free, self.getters, strict=True):
             value = p.to_physical(theta[sl[p.name]])
-            act = eqx.tree_at(_getter(p.name), act, value)
+            act = eqx.tree_at(getter, act, value)
         return act
 
     def physical(self, theta) -> dict[str, np.ndarray]:

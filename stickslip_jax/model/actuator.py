@@ -117,17 +117,17 @@ class Actuator(eqx.Module):
             f_slider = f_slider + t.force_slider
         a1 = self.piezo.acceleration(core.x1, core.v1, stroke, ff, f_piezo)
         a2 = self.slider.acceleration(core.x2, core.v2, ff, f_slider)
-        d_core = jnp.stack([core.v1, a1, core.v2, a2, zdot])
-        if self.n_states == N_CORE:
-            return d_core
-        stage, ext = self._slots(y)
-        parts = [d_core]
-        if self.input_stage.n_states:
-            parts.append(self.input_stage.rate(stage, u_command))
-        for e, s in zip(self.extensions, ext, strict=True):
-            if e.n_states:
-                parts.append(e.rate(s, core, drive))
-        return jnp.concatenate(parts)
+        scalars = [core.v1, a1, core.v2, a2, zdot]
+        if self.n_states > N_CORE:
+            stage, ext = self._slots(y)
+            if self.input_stage.n_states:
+                scalars += list(self.input_stage.rate(stage, u_command))
+            for e, s in zip(self.extensions, ext, strict=True):
+                if e.n_states:
+                    scalars += list(e.rate(s, core, drive))
+        # One stack of scalars (not a concatenation of vectors): XLA on CPU then fuses
+        # the whole derivative into one kernel (measured 4x faster under jacfwd).
+        return jnp.stack(scalars)
 
     def project(self, y, drive: DriveContext):
         """Saturate the friction state after a sub-step (|z| ≤ |z_ss|)."""

@@ -1,0 +1,99 @@
+"""``stickslip diagnose``: locate model/recording mismatch, name the missing physics,
+add it, refit and show the fit improve."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import fail, reported_errors, setup_jax
+from .identify_cmd import _parse_fix
+
+EPILOG = """Examples:
+
+  stickslip diagnose fixtures/concealed/set_03 --out out/diag --fix Ms=0.0247
+
+  stickslip diagnose runs/ --params out/id/params.json --skip-identify --out out/diag
+
+  stickslip diagnose runs/ --out out/diag --candidates creep,sensor_delay --max-rounds 1
+
+Writes diagnosis.json (baseline, mismatch, missing_physics, final, verdict), report.md
+and figures/. Exit codes: 0 done (whatever the verdict); 2 bad input.
+"""
+
+
+def diagnose_command(
+    data: list[Path] = typer.Argument(..., help="Recording files and/or folders (MODEL.md "
+                                      "CSV or NPZ, with a position column)."),
+    out: Path = typer.Option(..., "--out", help="Output folder for diagnosis.json, "
+                             "report.md and figures/."),
+    params: Path | None = typer.Option(None, "--params", help="Starting parameters (JSON). "
+                                       "Default: the lu2015_slc1720 profile."),
+    fix: list[str] = typer.Option([], "--fix", help="Hold NAME at VALUE (SI), repeatable, "
+                                  "e.g. --fix Ms=0.0247."),
+    skip_identify: bool = typer.Option(False, "--skip-identify", help="Take --params as an "
+                                       "identified baseline: only polish it, do not run the "
+                                       "identification steps first."),
+    candidates: str = typer.Option("", "--candidates", help="Comma-separated catalogue "
+                                   "entries to consider (default: all)."),
+    max_rounds: int = typer.Option(3, "--max-rounds", help="Accept at most this many "
+                                   "effects."),
+    top: int = typer.Option(3, "--top", help="Refit at most this many leading entries per "
+                            "round."),
+    max_steps: int = typer.Option(25, "--max-steps", help="Levenberg-Marquardt steps per "
+                                  "refit."),
+    no_fallback: bool = typer.Option(False, "--no-fallback", help="Do not fit the learned "
+                                     "correction when no entry explains the residual."),
+    no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
+    force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),
+) -> None:
+    """Find where simulation and recordings differ, name the physics the model leaves
+    out (from a catalogue of model extensions), add it, refit, and report the fit
+    before and after."""
+    with reported_errors():
+        setup_jax()
+        from ..diagnose import NAMES, diagnose
+        from ..diagnose.report import write_diagnosis
+        from ..files import check_output_path
+        from ..io import load_recordings
+        from ..model.profiles import lu2015_slc1720
+        from ..params import load_params
+
+        chosen = [c.strip() for c in candidates.split(",") if c.strip()] or None
+        bad = [c for c in chosen or [] if c not in NAMES]
+        if bad:
+            raise fail(f"--candidates: unknown entr(y/ies) {bad}; choose from {', '.join(NAMES)}")
+        if max_rounds < 1 or top < 1 or max_steps < 1:
+            raise fail("--max-rounds, --top and --max-steps must be at least 1")
+        if skip_identify and params is None:
+            raise fail("--skip-identify needs --params (the identified baseline)")
+        fixed = _parse_fix(fix)
+        recordings = load_recordings(data)
+        inputs = [r.source for r in recordings if r.source]
+        for name in ("diagnosis.json", "report.md"):
+            check_output_path(out / name, force=force, inputs=inputs)
+        start = load_params(params) if params is not None else lu2015_slc1720()
+        typer.echo(f"{len(recordings)} recording(s); start: "
+                   f"{params if params is not None else 'profile lu2015_slc1720'}", err=True)
+        try:
+            result = diagnose(recordings, init=start, fix=fixed,
+                              identify_steps=() if skip_identify else
+                              ("dynamics", "hysteresis", "friction", "joint"),
+                              candidates=chosen, max_rounds=max_rounds, top=top,
+                              max_steps=max_steps, fallback=not no_fallback,
+                              echo=lambda s: typer.echo(s, err=True))
+        except ValueError as err:
+            raise fail(str(err)) from None
+        written = write_diagnosis(result, out, force=force, inputs=inputs,
+                                  figures=not no_figures)
+    typer.echo(f"verdict: {result.verdict}")
+    typer.echo(f"NRMSE {100 * result.nrmse_baseline.mean():.4f} % -> "
+               f"{100 * result.nrmse_final.mean():.4f} %")
+    for c in result.accepted:
+        typer.echo(f"  named: {c.name} (ΔBIC {c.criterion_delta:.1f}; "
+                   + ", ".join(f"{k}={v:.4g}" for k, v in c.params.items()) + ")")
+    if result.unexplained is not None:
+        typer.echo("  unexplained; learned correction depends on: "
+                   + (", ".join(result.unexplained["depends_on"]) or "nothing significant"))
+    typer.echo(f"wrote {written['diagnosis']} and {written['report']}")

@@ -1,0 +1,102 @@
+"""Concealed-effect recording sets: the identification protocol with one hidden effect.
+
+Each effect is added to a known baseline truth as a model component (the classes of
+:mod:`stickslip_jax.model.extensions`), deliberately *not* always in the form that the
+diagnosis catalogue fits:
+
+==========================  ==========================================================
+effect                      generator form (catalogue form, when different)
+==========================  ==========================================================
+creep                       four first-order modes, 0.5 to 150 ms, equal gains: a
+                            log-in-time law (catalogue: one first-order mode)
+drive_bandwidth             amplifier slew-limited at 1.2 V/µs, 8 µs small-signal lag
+                            (catalogue: a two-pole low-pass)
+structural_mode             mount resonance at 3.3 kHz excited by the contact force
+sensor_delay                15 µs interferometer delay
+sensor_drift                thermal drift settling exponentially (catalogue: linear)
+external_load               constant 0.01 N on the slider
+contact_damping             rho1 = 6 N·s/m
+viscous_friction            rho2 = 2 N·s/m
+stribeck                    Stribeck steady state, peak 1.6x, v_s = 2 mm/s
+rate_dependent_hysteresis   stroke lag growing with the voltage rate
+uncatalogued                a force periodic in slider position (guide waviness)
+none                        the baseline alone (the null set)
+==========================  ==========================================================
+
+``preload_dependence`` (CEIM) cannot show in this protocol: every recording shares one
+normal force, and at a fixed preload its effect is absorbed by z_ba, z_ss and rho0.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import numpy as np
+
+from ..model.actuator import Actuator
+from ..model.extensions import (
+    Creep,
+    ExponentialDrift,
+    PositionRipple,
+    RateDependentStroke,
+    SensorOutput,
+    SlewLimitedInput,
+    StructuralMode,
+)
+from ..model.friction import StribeckElastoPlastic
+
+CANNOT_SHOW = {
+    "preload_dependence": "every recording of the protocol is taken at one preload; CEIM "
+                          "changes z_ba, z_ss and rho0 with the normal force, which at a "
+                          "single normal force is a reparametrisation the baseline fit "
+                          "absorbs. It needs recordings at several preloads.",
+}
+
+
+def _pi_slope(act: Actuator) -> float:
+    """Small-signal stroke per volt of the PI loop [m/V] (first weight)."""
+    return float(np.asarray(act.hysteresis.weights)[0])
+
+
+def _stribeck(act: Actuator) -> Actuator:
+    f = act.friction
+    new = StribeckElastoPlastic(f.rho0, f.z_ba_forward, f.z_ba_backward, stribeck_ratio=1.6,
+                                v_s=2e-3, zba_ratio=f.zba_ratio, rho1=f.rho1, rho2=f.rho2)
+    return eqx.tree_at(lambda a: a.friction, act, new)
+
+
+def with_effect(act: Actuator, effect: str) -> Actuator:
+    """``act`` with the hidden ``effect`` (see the module table) added."""
+    w = _pi_slope(act)
+    if effect == "none":
+        return act
+    if effect == "creep":
+        for tau in (0.5e-3, 4e-3, 25e-3, 150e-3):
+            act = act.with_extension(Creep(0.02 * w, tau))
+        return act
+    if effect == "drive_bandwidth":
+        return eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(1.2e6, 8e-6))
+    if effect == "structural_mode":
+        return act.with_extension(StructuralMode(3300.0, 0.03, 1.2e-7))
+    if effect == "sensor_delay":
+        return eqx.tree_at(lambda a: a.output_map, act, SensorOutput(delay=15e-6))
+    if effect == "sensor_drift":
+        return eqx.tree_at(lambda a: a.output_map, act, ExponentialDrift(60e-9, 0.04))
+    if effect == "external_load":
+        return eqx.tree_at(lambda a: a.slider.F_ext, act, np.asarray(0.01))
+    if effect == "contact_damping":
+        return eqx.tree_at(lambda a: a.friction.rho1, act, np.asarray(6.0))
+    if effect == "viscous_friction":
+        return eqx.tree_at(lambda a: a.friction.rho2, act, np.asarray(2.0))
+    if effect == "stribeck":
+        return _stribeck(act)
+    if effect == "rate_dependent_hysteresis":
+        return act.with_extension(RateDependentStroke(0.03 * w, 0.3e-3))
+    if effect == "uncatalogued":
+        return act.with_extension(PositionRipple(0.03, 0.8e-6))
+    raise ValueError(f"unknown effect {effect!r}")
+
+
+EFFECTS = ("creep", "drive_bandwidth", "structural_mode", "sensor_delay", "sensor_drift",
+           "external_load", "contact_damping", "viscous_friction", "stribeck",
+           "rate_dependent_hysteresis", "uncatalogued", "none")
+"""Every concealed set the generator makes (``none``: the null set)."""

@@ -1,0 +1,242 @@
+"""Outputs of a diagnosis: ``diagnosis.json``, ``report.md`` and its figures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..files import atomic_write_text, check_output_path
+from ..identify.residuals import _psd
+from .locate import residual_of
+from .run import ADEQUATE_CHI2, BIC_MIN, EXPLAINED_MIN, SCORE_MIN, Diagnosis
+
+CRITERION = ("BIC of the noise-whitened time-domain residual (noise level estimated from "
+             "each recording): criterion_delta = ΔRSS/σ² + k·ln N; accepted below "
+             f"{BIC_MIN:g} when the entry also removes at least {100 * EXPLAINED_MIN:.0f} % "
+             f"of the residual's excess over the noise or leaves mean (e/σ)² ≤ "
+             f"{ADEQUATE_CHI2:g}")
+
+
+def _finite(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _per_recording(d: Diagnosis, nrmse, analyses) -> list[dict]:
+    return [{"recording": a.recording, "regime": a.regime, "nrmse": float(n),
+             "chi2_per_sample": a.chi2, "noise_nm": a.noise_m * 1e9,
+             "rms_residual_nm": a.rms_residual_m * 1e9}
+            for a, n in zip(analyses, nrmse, strict=True)]
+
+
+def _evidence(c, analyses) -> dict:
+    return {"score_statistic": c.score, "probe": c.probe, "sizing_drop": c.size_drop,
+            "explained_share_of_excess": _finite(c.explained),
+            "chi2_per_sample_after": _finite(c.chi2_after),
+            "indistinguishable_from": list(c.indistinguishable_from)}
+
+
+def diagnosis_dict(d: Diagnosis) -> dict:
+    """The content of ``diagnosis.json``."""
+    missing = [{"name": c.name, "evidence": _evidence(c, d.analyses_baseline),
+                "params": c.params, "nrmse_before": c.nrmse_before,
+                "nrmse_after": c.nrmse_after, "criterion_delta": c.criterion_delta}
+               for c in d.accepted]
+    rounds = [[{"name": c.name, "score_statistic": c.score, "probe": c.probe,
+                "sizing_drop": c.size_drop, "refitted": c.refitted,
+                "criterion_delta": _finite(c.criterion_delta),
+                "explained_share_of_excess": _finite(c.explained),
+                "nrmse_after": _finite(c.nrmse_after), "accepted": c.accepted,
+                "note": c.note, "wall_s": c.wall_s} for c in rnd] for rnd in d.rounds]
+    out = {
+        "baseline": {"nrmse": float(d.nrmse_baseline.mean()),
+                     "chi2_per_sample": d.chi2_baseline,
+                     "per_recording": _per_recording(d, d.nrmse_baseline,
+                                                     d.analyses_baseline)},
+        "mismatch": d.mismatch,
+        "missing_physics": missing,
+        "final": {"nrmse": float(d.nrmse_final.mean()), "chi2_per_sample": d.chi2_final,
+                  "terms": d.terms,
+                  "per_recording": _per_recording(d, d.nrmse_final, d.analyses_final)},
+        "verdict": d.verdict,
+        "criterion": CRITERION,
+        "score_test": f"Lagrange-multiplier score of each entry's first-order signature, "
+                      f"refitted when ≥ {SCORE_MIN:g} (χ²(1) under no effect)",
+        "candidates_by_round": rounds,
+        "indistinguishable_here": d.not_testable,
+        "notes": d.notes,
+        "timings_s": d.timings,
+    }
+    if d.unexplained is not None:
+        u = dict(d.unexplained)
+        out["unexplained"] = u
+    return out
+
+
+def write_diagnosis(d: Diagnosis, out_dir: str | Path, *, force: bool = False,
+                    inputs=(), figures: bool = True) -> dict[str, Path]:
+    """Write ``diagnosis.json``, ``report.md`` and figures into ``out_dir``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: dict[str, Path] = {}
+    content = diagnosis_dict(d)
+    path = out_dir / "diagnosis.json"
+    check_output_path(path, force=force, inputs=inputs)
+    atomic_write_text(path, json.dumps(content, indent=1, default=float) + "\n")
+    written["diagnosis"] = path
+    figs = {}
+    if figures:
+        fig_dir = out_dir / "figures"
+        fig_dir.mkdir(exist_ok=True)
+        for name, fn in (("residual_map", plot_residual_map), ("overlays", plot_overlays),
+                         ("residual_psd", plot_residual_psd)):
+            p = fig_dir / f"{name}.png"
+            check_output_path(p, force=force, inputs=inputs)
+            fn(d, p)
+            figs[name] = p
+        written.update(figs)
+    report = out_dir / "report.md"
+    check_output_path(report, force=force, inputs=inputs)
+    atomic_write_text(report, report_markdown(content, figs, out_dir))
+    written["report"] = report
+    return written
+
+
+def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
+    """``report.md``: verdict, what was named, tables, figures."""
+    lines = ["# Diagnosis", "", f"**Verdict: {content['verdict']}**", ""]
+    b, f = content["baseline"], content["final"]
+    lines += [f"Baseline NRMSE {100 * b['nrmse']:.4f} % (mean (e/σ)² "
+              f"{b['chi2_per_sample']:.3f}); final {100 * f['nrmse']:.4f} % "
+              f"({f['chi2_per_sample']:.3f}). Model terms: {', '.join(f['terms'])}.", ""]
+    lines += ["## Missing physics, best first", ""]
+    if content["missing_physics"]:
+        lines += ["| name | NRMSE before | NRMSE after | ΔBIC | parameters |",
+                  "|---|---|---|---|---|"]
+        for m in content["missing_physics"]:
+            params = ", ".join(f"{k}={v:.4g}" for k, v in m["params"].items())
+            lines.append(f"| {m['name']} | {100 * m['nrmse_before']:.4f} % | "
+                         f"{100 * m['nrmse_after']:.4f} % | {m['criterion_delta']:.1f} | "
+                         f"{params} |")
+            ind = m["evidence"]["indistinguishable_from"]
+            if ind:
+                lines.append(f"|  | indistinguishable from: {', '.join(ind)} | | | |")
+    else:
+        lines.append("None accepted.")
+    lines += ["", f"Criterion: {content['criterion']}.", ""]
+    if "unexplained" in content:
+        u = content["unexplained"]
+        lines += ["## Unexplained residual", "",
+                  f"No catalogue entry explains it. A learned force correction depends on: "
+                  f"{', '.join(u['depends_on']) or 'nothing significant'} (ΔBIC "
+                  f"{u['criterion_delta']:.1f}, mean (e/σ)² {u['chi2_before']:.3f} → "
+                  f"{u['chi2_after']:.3f}).", ""]
+    lines += ["## Candidates scored", ""]
+    for i, rnd in enumerate(content["candidates_by_round"], 1):
+        lines += [f"Round {i}:", "",
+                  "| name | score | sizing drop | refitted | ΔBIC | explained | note |",
+                  "|---|---|---|---|---|---|---|"]
+        for c in rnd:
+            dbic = "" if c["criterion_delta"] is None else f"{c['criterion_delta']:.1f}"
+            ex = ("" if c["explained_share_of_excess"] is None
+                  else f"{100 * c['explained_share_of_excess']:.0f} %")
+            lines.append(f"| {c['name']} | {c['score_statistic']:.3g} | "
+                         f"{c['sizing_drop']:.3g} | {c['refitted']} | "
+                         f"{dbic} | {ex} | {c['note']} |")
+        lines.append("")
+    if content["indistinguishable_here"]:
+        lines += ["Cannot be tested with these recordings:", ""]
+        lines += [f"- `{k}`: {v}" for k, v in content["indistinguishable_here"].items()]
+        lines.append("")
+    lines += ["## Where the baseline misses", "",
+              "| recording | regime | (e/σ)² | Ljung-Box p | dominant phase | band [Hz] |",
+              "|---|---|---|---|---|---|"]
+    for m in content["mismatch"]:
+        s = m["statistic"]
+        lines.append(f"| {m['recording']} | {m['regime']} | {s['chi2_per_sample']:.2f} | "
+                     f"{s['ljung_box_p']:.1e} | {s['dominant_phase']} | "
+                     f"{m['band_Hz'][0]:.0f}-{m['band_Hz'][1]:.0f} |")
+    lines.append("")
+    for name, p in figs.items():
+        lines += [f"![{name}]({p.relative_to(out_dir).as_posix()})", ""]
+    return "\n".join(lines)
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_residual_map(d: Diagnosis, path):
+    """Mean (e/σ)² per recording, baseline and final, grouped by regime."""
+    plt = _pyplot()
+    names = [a.recording for a in d.analyses_baseline]
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(names)), 3.8))
+    ax.bar(x - 0.2, [a.chi2 for a in d.analyses_baseline], 0.4, label="baseline")
+    ax.bar(x + 0.2, [a.chi2 for a in d.analyses_final], 0.4, label="final")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level")
+    ax.set_yscale("log")
+    ax.set_xticks(x, [f"{n}\n{a.regime}" for n, a in zip(names, d.analyses_baseline,
+                                                          strict=True)],
+                  rotation=90, fontsize=7)
+    ax.set_ylabel("mean (residual/σ)²")
+    ax.set_title(f"Residual by recording and regime — {d.verdict}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_overlays(d: Diagnosis, path, n: int = 4):
+    """Measured vs baseline vs final, and both residuals, for the worst recordings."""
+    plt = _pyplot()
+    order = np.argsort([-a.chi2 for a in d.analyses_baseline])[:n]
+    fig, axes = plt.subplots(2, len(order), figsize=(3.6 * len(order), 5.2), squeeze=False)
+    for j, i in enumerate(order):
+        rec = d.data.recordings[i]
+        t = rec.time_s * 1e3
+        e0 = residual_of(rec, d.q_baseline[i])
+        e1 = residual_of(rec, d.q_final[i])
+        q = rec.position_m
+        axes[0, j].plot(t, q * 1e6, "k", lw=0.8, label="measured")
+        axes[0, j].plot(t, (q - e0) * 1e6, lw=0.8, label="baseline")
+        axes[0, j].plot(t, (q - e1) * 1e6, lw=0.8, ls="--", label="final")
+        axes[0, j].set_title(rec.name, fontsize=8)
+        axes[1, j].plot(t, e0 * 1e9, lw=0.6, label="baseline")
+        axes[1, j].plot(t, e1 * 1e9, lw=0.6, label="final")
+        axes[1, j].set_xlabel("t [ms]")
+    axes[0, 0].set_ylabel("q [µm]")
+    axes[1, 0].set_ylabel("residual [nm]")
+    axes[0, 0].legend(fontsize=7)
+    axes[1, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_residual_psd(d: Diagnosis, path, n: int = 4):
+    """Residual PSD over the noise level, baseline and final, worst recordings."""
+    plt = _pyplot()
+    order = np.argsort([-a.chi2 for a in d.analyses_baseline])[:n]
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    for i in order:
+        rec = d.data.recordings[i]
+        level = d.sigmas[i] ** 2 * rec.dt
+        for q, ls in ((d.q_baseline[i], "-"), (d.q_final[i], ":")):
+            f, p = _psd(residual_of(rec, q), rec.dt, np)
+            ax.loglog(f[1:], p[1:] / level, ls, lw=0.7,
+                      label=f"{rec.name} ({'baseline' if ls == '-' else 'final'})")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("residual PSD / noise level")
+    ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,454 @@
+"""The diagnosis loop: baseline, locate, score the catalogue, refit, accept, repeat.
+
+1. Baseline: the paper's model (one parameter set, z_ba per direction, rho1 = rho2 =
+   0, q = x1 + x2), identified by :func:`~stickslip_jax.identify.identify` and then
+   polished on the noise-whitened time-domain residual (each recording's residual
+   divided by its own noise level, estimated from the data), the metric that every
+   later comparison uses.
+2. Locate the mismatch per recording (:mod:`.locate`).
+3. Score every catalogue entry by how well its signature matches the residual: a
+   score (Lagrange-multiplier) test. With ``J_b`` the Jacobian of the whitened
+   residual ``r`` in the baseline parameters and ``c`` its derivative in the
+   entry's strength at zero, ``c⊥`` the part of ``c`` the baseline parameters cannot
+   mimic, the statistic ``S = (r·c⊥)²/|c⊥|²`` is the drop of the residual sum of
+   squares that the entry would buy to first order, χ²(1) when the entry is absent.
+   Strengths of the wrong sign (negative damping, negative delay) score 0.
+4. Refit the leading entries (``S`` above :data:`SCORE_MIN`) from the current optimum,
+   freeing the entry's parameters and every baseline parameter, and compare with the
+   Bayesian information criterion of the whitened residual (known noise level):
+   ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N samples). The best entry is
+   accepted when ``ΔBIC < −10`` (strong evidence) *and* it explains the residual:
+   it removes at least half of the residual's excess over the noise, or leaves a
+   residual at the noise level. Entries whose ΔBIC comes within 10 % of the best
+   are reported as indistinguishable from it. Repeat until no entry is accepted.
+5. If a structured residual remains that no entry explains, fit the data-driven
+   correction (:class:`~stickslip_jax.model.extensions.LearnedForce`, sparse
+   regression) and report it as ``unexplained`` with what it depends on.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..identify.dataset import Dataset
+from ..identify.parameters import SCALE_INVARIANT, ParameterMap, ParameterSpec
+from ..identify.residuals import TraceResiduals, nrmse_per_recording
+from ..identify.solve import solve_least_squares
+from ..identify.steps import DYNAMICS, STEPS, identify
+from ..model.actuator import Actuator
+from ..model.extensions import LEARNED_FEATURES, LearnedForce
+from ..noise import noise_sigma
+from .catalogue import CATALOGUE, Candidate, Probe
+from .locate import RecordingResidual, analyse_recording, mismatch_entries, residual_peaks
+
+SCORE_MIN = 30.0
+"""Score-test statistic (χ²(1) under no effect) an entry needs to be refitted: p ≈ 4e-8,
+safe against the ~20 probes tested at once."""
+BIC_MIN = -10.0
+"""ΔBIC an entry must reach to be accepted (strong evidence)."""
+EXPLAINED_MIN = 0.5
+"""Share of the residual's excess over the noise an entry must remove to be named."""
+ADEQUATE_CHI2 = 1.10
+"""Mean (e/σ)² at which a residual counts as noise: σ is estimated from the data to a
+few per cent (period repeatability, third differences)."""
+INDISTINGUISHABLE = 0.9
+"""An entry whose ΔBIC reaches this share of the best one's is indistinguishable."""
+
+
+class WhitenedResiduals(eqx.Module):
+    """``θ ↦`` residual samples divided by each recording's noise level [-]: the
+    offset-removed ``measured − simulated`` of every real sample over σ (padding 0)."""
+
+    inner: TraceResiduals
+    inv_sigma: jax.Array
+
+    def __call__(self, theta, args=None):
+        r = self.inner(theta).reshape(self.inv_sigma.shape[0], -1)
+        return (r * self.inv_sigma[:, None]).reshape(-1)
+
+
+@dataclass
+class CandidateResult:
+    """One catalogue entry's score and, if refitted, its refit."""
+
+    name: str
+    probe: str = ""
+    score: float = 0.0
+    strength: float = 0.0
+    size_drop: float = 0.0
+    refitted: bool = False
+    params: dict = field(default_factory=dict)
+    rss_before: float = np.nan
+    rss_after: float = np.nan
+    nrmse_before: float = np.nan
+    nrmse_after: float = np.nan
+    criterion_delta: float = np.nan
+    explained: float = np.nan
+    chi2_after: float = np.nan
+    accepted: bool = False
+    indistinguishable_from: list[str] = field(default_factory=list)
+    note: str = ""
+    wall_s: float = 0.0
+    actuator: Actuator | None = None
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`diagnose` (see the module docstring)."""
+
+    data: Dataset
+    sigmas: np.ndarray
+    baseline: Actuator
+    final: Actuator
+    nrmse_baseline: np.ndarray
+    nrmse_final: np.ndarray
+    chi2_baseline: float
+    chi2_final: float
+    analyses_baseline: list[RecordingResidual]
+    analyses_final: list[RecordingResidual]
+    mismatch: list[dict]
+    accepted: list[CandidateResult]
+    rounds: list[list[CandidateResult]]
+    not_testable: dict[str, str]
+    unexplained: dict | None
+    verdict: str
+    q_baseline: np.ndarray
+    q_final: np.ndarray
+    terms: list[str]
+    timings: dict[str, float]
+    notes: list[str] = field(default_factory=list)
+
+
+def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
+    """The baseline's fitted quantities: dynamics (less the fixed ones), the PI
+    weights, z_ba for each direction present."""
+    names = [n for n in DYNAMICS if n not in fix] + ["pi_weights", "z_ba_forward"]
+    if any(r.drive.is_backward for r in data.recordings):
+        names.append("z_ba_backward")
+    return [n for n in names if n not in fix]
+
+
+class _Problem:
+    """The data, the noise levels and the whitened residual of any actuator."""
+
+    def __init__(self, data: Dataset, sigmas: np.ndarray, fix: dict, echo):
+        self.data, self.sigmas, self.fix, self.say = data, sigmas, fix, echo
+        self.n_obs = int(data.mask.sum())
+
+    def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:
+        return WhitenedResiduals(TraceResiduals(pmap, self.data, in_metres=True),
+                                 jnp.asarray(1.0 / self.sigmas))
+
+    def evaluate(self, act: Actuator):
+        """(whitened RSS, mean NRMSE, simulated outputs) of ``act``."""
+        res = self.residuals(ParameterMap.make(act, []))
+        theta = jnp.zeros(0)
+        q = np.asarray(res.inner.simulate(theta))
+        r = np.asarray(res(theta))
+        return float(r @ r), nrmse_per_recording(q, self.data), q
+
+    def fit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
+            max_steps: int) -> tuple[Actuator, float, object]:
+        """Least squares of the whitened residual over ``names`` from ``act``."""
+        pmap = ParameterMap.make(act, list(names), specs)
+        res = self.residuals(pmap)
+        out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=label,
+                                  echo=None)
+        fitted = pmap.actuator(jnp.asarray(out.theta))
+        self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
+                 f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")
+        return fitted, float(out.cost_end), out
+
+
+def _install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
+    """The current actuator with every applicable probe at zero strength, and the list
+    of ``(candidate, probe, name, spec)`` addressing each strength."""
+    entries = []
+    for cand in candidates:
+        for probe in cand.probes(act, hints):
+            try:
+                if probe.extension is not None:
+                    i = len(act.extensions)
+                    act = act.with_extension(probe.extension)
+                    spec = ParameterSpec(lambda a, i=i, f=probe.field: getattr(a.extensions[i], f),
+                                         "linear", probe.spec.scale, probe.spec.unit)
+                else:
+                    act = probe.install(act)
+                    spec = probe.spec
+            except ValueError:
+                continue  # the slot is taken by an accepted effect
+            entries.append((cand, probe, f"probe{len(entries)}", spec))
+    return act, entries
+
+
+def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
+                     candidates: Sequence[Candidate], hints: dict):
+    """Score test of every probe (see the module docstring). Returns a dict
+    ``name → (score, strength, probe)`` with each candidate's best probe."""
+    probe_act, entries = _install_probes(act, candidates, hints)
+    names = base_names + [e[2] for e in entries]
+    specs = {e[2]: e[3] for e in entries}
+    res = problem.residuals(ParameterMap.make(probe_act, names, specs))
+    theta = jnp.zeros(len(ParameterMap.make(probe_act, names, specs).labels()))
+    jac = np.asarray(jax.jit(jax.jacfwd(res))(theta))
+    r = np.asarray(res(theta))
+    n_base = jac.shape[1] - len(entries)
+    jb = jac[:, :n_base]
+    norms = np.linalg.norm(jb, axis=0)
+    q, _ = np.linalg.qr(jb / np.where(norms > 0, norms, 1.0))
+    out: dict[str, tuple[float, float, Probe]] = {}
+    for k, (cand, probe, _, spec) in enumerate(entries):
+        c = jac[:, n_base + k]
+        c_perp = c - q @ (q.T @ c)
+        cc = float(c_perp @ c_perp)
+        if cc <= 1e-12 * max(float(c @ c), 1e-300):
+            score, beta = 0.0, 0.0
+        else:
+            beta = -float(r @ c_perp) / cc
+            score = float(r @ c_perp) ** 2 / cc
+            if probe.sign > 0 and beta < 0:
+                # Wrong sign to first order: a negative score, so that the entry ranks
+                # after every admissible one (a large effect can still turn the sign
+                # around; see diagnose's ``top``).
+                score, beta = -score, -beta
+        # Start refits at a quarter of the Gauss-Newton strength: for large effects the
+        # linearised step overshoots (seen: start costs 20x the baseline's).
+        strength = 0.25 * beta * spec.scale
+        if cand.name not in out or score > out[cand.name][0]:
+            out[cand.name] = (score, strength, probe)
+    return out
+
+
+def _learned_scales(problem: _Problem, q: np.ndarray) -> tuple[float, ...]:
+    travel = max(float(np.max(np.ptp(problem.data.measured, axis=1))), 1e-9)
+    u = max(float(np.max(np.abs(problem.data.voltages))), 1.0)
+    return (travel, 1e-3, 1e-3, 1e-4, u, 1e-7)
+
+
+def _fit_learned(problem: _Problem, act: Actuator, base_names, rss0: float, q: np.ndarray,
+                 max_steps: int) -> dict:
+    """Sparse regression of a force correction (fit, drop |t| < 4, refit)."""
+    scales = _learned_scales(problem, q)
+    keep = list(range(len(LEARNED_FEATURES)))
+    fitted, rss = act, rss0
+    for stage in ("full", "sparse"):
+        coef = np.zeros(len(LEARNED_FEATURES))
+        trial = act.with_extension(LearnedForce(coef, scales))
+
+        def get(a):
+            return a.extensions[-1].coef
+        spec = {"learned_coef": ParameterSpec(get, "linear", 0.01, "N")}
+        fitted, rss, _ = problem.fit(trial, base_names + ["learned_coef"], spec,
+                                     label=f"learned {stage}", max_steps=max_steps)
+        if stage == "sparse":
+            break
+        # t-statistics of the coefficients from the whitened Jacobian (σ = 1).
+        pmap = ParameterMap.make(fitted, base_names + ["learned_coef"], spec)
+        jac = np.asarray(jax.jit(jax.jacfwd(problem.residuals(pmap)))(pmap.zeros()))
+        cov = np.linalg.pinv(jac.T @ jac)
+        sl = pmap.slices()["learned_coef"]
+        c = np.asarray(fitted.extensions[-1].coef)
+        se = np.sqrt(np.maximum(np.diag(cov)[sl], 1e-300)) * 0.01
+        t = c / se
+        keep = [i for i in range(len(c)) if abs(t[i]) >= 4.0]
+        if not keep:
+            return {"features": [], "rss": rss, "actuator": act, "t": t.tolist()}
+        # Refit with the others held at zero: a library with only the kept columns.
+        scales = tuple(s if i in keep else np.inf for i, s in enumerate(scales))
+    coef = np.asarray(fitted.extensions[-1].coef)
+    order = sorted(keep, key=lambda i: -abs(coef[i]))
+    return {"features": [LEARNED_FEATURES[i] for i in order],
+            "coefficients_N": {LEARNED_FEATURES[i]: float(coef[i]) for i in order},
+            "rss": rss, "actuator": fitted}
+
+
+def _terms(act: Actuator) -> list[str]:
+    terms = ["piezo", type(act.hysteresis).__name__, "slider", type(act.friction).__name__]
+    if not act.input_stage.is_identity:
+        terms.append(type(act.input_stage).__name__)
+    terms += [type(e).__name__ for e in act.extensions]
+    if type(act.output_map).__name__ != "IdentityOutput":
+        terms.append(type(act.output_map).__name__)
+    return terms
+
+
+def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
+             identify_steps: Sequence[str] = STEPS, candidates: Sequence[str] | None = None,
+             max_rounds: int = 3, top: int = 3, max_steps: int = 25, fallback: bool = True,
+             echo: Callable[[str], None] | None = None) -> Diagnosis:
+    """Diagnose what the baseline model leaves out of ``recordings`` (module docstring).
+
+    ``init`` the starting actuator; ``fix`` quantities held (SI; the mass scale, e.g.
+    ``{"Ms": 0.0247}``); ``identify_steps`` the identification steps run before the
+    polish (empty: start the polish from ``init``); ``candidates`` catalogue names to
+    consider (default all); ``max_rounds`` accept at most this many entries; ``top``
+    refit at most this many entries per round; ``max_steps`` LM steps per refit.
+    """
+    say = echo or (lambda s: None)
+    timings: dict[str, float] = {}
+    t_all = time.perf_counter()
+    data = Dataset.from_recordings(recordings)
+    fix = dict(fix or {})
+    notes: list[str] = []
+    if not any(n in fix for n in SCALE_INVARIANT):
+        fix["Ms"] = float(init.slider.Ms)
+        notes.append(f"Ms held at {fix['Ms']:g} kg (position data fix only ratios of the "
+                     f"masses, dampings and stiffnesses).")
+    sigmas = np.array([noise_sigma(r) for r in data.recordings])
+    problem = _Problem(data, sigmas, fix, say)
+
+    # 1. Baseline.
+    t0 = time.perf_counter()
+    act = init
+    if identify_steps:
+        say("[baseline] identification (the paper's model)")
+        act = identify(data.recordings, init=init, fix=fix, steps=identify_steps,
+                       max_steps=60, echo=say).actuator
+    base_names = baseline_free(act, data, fix)
+    act, rss, _ = problem.fit(act, base_names, {}, label="baseline polish",
+                              max_steps=3 * max_steps)
+    rss, nrmse0, q0 = problem.evaluate(act)
+    baseline = act
+    timings["baseline_s"] = time.perf_counter() - t0
+    n_obs = problem.n_obs
+    chi2_0 = rss / n_obs
+    analyses0 = [analyse_recording(r, q0[i], sigmas[i]) for i, r in enumerate(data.recordings)]
+    mismatch = mismatch_entries(analyses0)
+    hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas)}
+    say(f"[baseline] NRMSE {100 * nrmse0.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
+        f"{len(mismatch)} recording(s) flagged; residual peaks {hints['peaks_Hz']}")
+
+    pool = [c for c in CATALOGUE if candidates is None or c.name in candidates]
+    not_testable = {}
+    for c in pool:
+        why = c.needs(data.recordings)
+        if why:
+            not_testable[c.name] = why
+    pool = [c for c in pool if c.name not in not_testable]
+
+    accepted: list[CandidateResult] = []
+    rounds: list[list[CandidateResult]] = []
+    nrmse_now = float(nrmse0.mean())
+    for rnd in range(max_rounds):
+        if rss / n_obs <= ADEQUATE_CHI2 and not any(a.flagged for a in analyses0) and rnd == 0:
+            say("[score] residual at the noise level; scoring anyway for the record")
+        t0 = time.perf_counter()
+        scores = score_candidates(problem, act, base_names, pool, hints)
+        timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
+        results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe) in
+                   sorted(scores.items(), key=lambda kv: -kv[1][0])]
+        say("[score] " + ", ".join(f"{r.name} {r.score:.3g}" for r in results))
+        # Size every entry the score test finds (either sign: a large effect can turn
+        # the first-order sign around) with the baseline held: its own 1-3 parameters,
+        # cheap. Rank by the larger of the score and the drop the sizing achieved.
+        sized = {}
+        for res in results:
+            if abs(res.score) < SCORE_MIN:
+                continue
+            cand = next(c for c in pool if c.name == res.name)
+            probe = scores[res.name][2]
+            start, specs = cand.attach(act, res.strength, probe)
+            start, rss_size, _ = problem.fit(start, list(specs), specs,
+                                             label=f"size {cand.name}", max_steps=15)
+            res.size_drop = rss - rss_size
+            sized[res.name] = (start, specs)
+        leading = sorted([r for r in results if r.name in sized],
+                         key=lambda r: -max(r.score, r.size_drop))[:top]
+        excess = max(rss - n_obs, 1e-9)
+        for res in leading:
+            cand = next(c for c in pool if c.name == res.name)
+            t0 = time.perf_counter()
+            start, specs = sized[res.name]
+            fitted, rss_new, _ = problem.fit(start, base_names + list(specs), specs,
+                                             label=f"refit {cand.name}", max_steps=max_steps)
+            rss_new, nrmse_new, _ = problem.evaluate(fitted)
+            k = sum(np.size(getattr_path(fitted, s.getter)) for s in specs.values())
+            res.refitted = True
+            res.actuator = fitted
+            res.params = {n: float(np.asarray(s.getter(fitted))) for n, s in specs.items()}
+            res.rss_before, res.rss_after = rss, rss_new
+            res.nrmse_before, res.nrmse_after = nrmse_now, float(nrmse_new.mean())
+            res.criterion_delta = rss_new - rss + k * np.log(n_obs)
+            res.explained = (rss - rss_new) / excess
+            res.chi2_after = rss_new / n_obs
+            res.wall_s = time.perf_counter() - t0
+        refitted = sorted([r for r in results if r.refitted], key=lambda r: r.criterion_delta)
+        rounds.append(results)
+        if not refitted:
+            break
+        best = refitted[0]
+        best.indistinguishable_from = [
+            r.name for r in refitted[1:]
+            if r.criterion_delta < BIC_MIN and r.criterion_delta <= INDISTINGUISHABLE
+            * best.criterion_delta]
+        explains = best.explained >= EXPLAINED_MIN or best.chi2_after <= ADEQUATE_CHI2
+        if best.criterion_delta < BIC_MIN and explains:
+            best.accepted = True
+            accepted.append(best)
+            say(f"[accept] {best.name}: ΔBIC {best.criterion_delta:.1f}, explains "
+                f"{100 * best.explained:.0f} % of the excess")
+            act, rss = best.actuator, best.rss_after
+            pool = [c for c in pool if c.name != best.name]
+            nrmse_now = best.nrmse_after
+        else:
+            best.note = ("not accepted: " + ("ΔBIC above the threshold"
+                                             if best.criterion_delta >= BIC_MIN else
+                                             f"explains only {100 * best.explained:.0f} % of "
+                                             f"the excess over the noise"))
+            say(f"[reject] {best.name}: {best.note}")
+            break
+        if rss / n_obs <= ADEQUATE_CHI2:
+            break
+
+    rss_final, nrmse_f, qf = problem.evaluate(act)
+    unexplained = None
+    # Structure the catalogue left: the residual is above the noise and the accepted
+    # entries (if any) removed less than half of the baseline's excess.
+    excess0 = max(chi2_0 * n_obs - n_obs, 1e-9)
+    left = (rss_final - n_obs) / excess0
+    structured = rss_final / n_obs > ADEQUATE_CHI2 and (not accepted or left > 1 - EXPLAINED_MIN)
+    if structured and fallback:
+        t0 = time.perf_counter()
+        say("[fallback] no catalogue entry explains the residual: sparse regression of a "
+            "force correction")
+        analyses_now = [analyse_recording(r, qf[i], sigmas[i])
+                        for i, r in enumerate(data.recordings)]
+        learned = _fit_learned(problem, act, base_names, rss_final, qf, max_steps)
+        k = len(learned["features"])
+        delta = learned["rss"] - rss_final + k * np.log(n_obs)
+        where = mismatch_entries(analyses_now)[:3]
+        unexplained = {
+            "where": where,
+            "depends_on": learned["features"],
+            "coefficients_N": learned.get("coefficients_N", {}),
+            "criterion_delta": float(delta),
+            "chi2_before": rss_final / n_obs,
+            "chi2_after": learned["rss"] / n_obs,
+        }
+        if k and delta < BIC_MIN:
+            act = learned["actuator"]
+            rss_final, nrmse_f, qf = problem.evaluate(act)
+        timings["fallback_s"] = time.perf_counter() - t0
+    analyses_f = [analyse_recording(r, qf[i], sigmas[i]) for i, r in enumerate(data.recordings)]
+    if structured:
+        verdict = "unexplained residual"
+    elif accepted:
+        verdict = "augmented"
+    else:
+        verdict = "baseline adequate"
+    timings["total_s"] = time.perf_counter() - t_all
+    return Diagnosis(data, sigmas, baseline, act, nrmse0, nrmse_f, chi2_0, rss_final / n_obs,
+                     analyses0, analyses_f, mismatch, accepted, rounds, not_testable,
+                     unexplained, verdict, q0, qf, _terms(act), timings, notes)
+
+
+def getattr_path(act: Actuator, getter) -> np.ndarray:
+    """The value ``getter`` selects in ``act``."""
+    return np.asarray(getter(act))

@@ -1,0 +1,358 @@
+"""Extra physics for the composition's slots: input stages, extensions, output maps.
+
+Each class is one effect that the paper's model leaves out, in the slot where it
+acts (see :class:`~stickslip_jax.model.actuator.Actuator`). They are the model side
+of the diagnosis catalogue (:mod:`stickslip_jax.diagnose.catalogue`) and of the
+concealed-effect generator; every one reduces exactly to the baseline model at its
+"zero" setting, so that its first-order signature is a derivative at zero.
+
+Input stages (voltage reaching the piezo):
+    :class:`LowPassInput` (first order), :class:`SecondOrderInput` (two poles),
+    :class:`SlewLimitedInput` (slew-rate limit).
+Extensions (own states and additive terms):
+    :class:`Creep` (first-order creep of the stroke), :class:`RateDependentStroke`
+    (stroke lag proportional to the voltage rate), :class:`StructuralMode` (a mount
+    resonance seen by the sensor), :class:`PositionRipple` (a force periodic in
+    slider position, no catalogue entry: used to test the honest "unexplained"),
+    :class:`LearnedForce` (the data-driven correction: sparse regression over a
+    library of state features).
+Output maps (what the sensor makes of q):
+    :class:`SensorOutput` (delay and linear drift), :class:`ExponentialDrift`,
+    :class:`ChainedOutput`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .base import (
+    AbstractExtension,
+    AbstractInputStage,
+    AbstractOutputMap,
+    CoreState,
+    DriveContext,
+    ExtensionTerms,
+)
+
+
+def _f(x):
+    return jnp.asarray(x, dtype=float)
+
+
+# ---- input stages -------------------------------------------------------------------
+class LowPassInput(AbstractInputStage):
+    """Drive amplifier with a first-order low-pass: ``τ·ṡ = u − s``.
+
+    The piezo sees ``u + mix·(s − u)``: ``mix = 1`` is the plain low-pass, ``mix = 0``
+    the pass-through (the zero setting whose derivative is the signature).
+
+    Attributes: ``tau`` time constant [s] (bandwidth 1/(2π·τ) Hz), ``mix`` [-].
+    """
+
+    tau: Float[Array, ""]
+    mix: Float[Array, ""]
+
+    def __init__(self, tau, mix=1.0):
+        self.tau = _f(tau)
+        self.mix = _f(mix)
+
+    @property
+    def n_states(self) -> int:
+        return 1
+
+    def initial_state(self, u0):
+        return jnp.atleast_1d(_f(u0))
+
+    def rate(self, state, u_command):
+        return (u_command - state) / self.tau
+
+    def voltage(self, state, u_command):
+        return u_command + self.mix * (state[0] - u_command)
+
+
+class SecondOrderInput(AbstractInputStage):
+    """Drive amplifier with a two-pole low-pass: ``s̈ = ω²(u − s) − 2ζω·ṡ``.
+
+    Attributes: ``frequency`` corner [Hz], ``damping`` ζ [-] (0.707: Butterworth).
+    """
+
+    frequency: Float[Array, ""]
+    damping: Float[Array, ""]
+
+    def __init__(self, frequency, damping=0.707):
+        self.frequency = _f(frequency)
+        self.damping = _f(damping)
+
+    @property
+    def n_states(self) -> int:
+        return 2
+
+    def initial_state(self, u0):
+        return jnp.stack([_f(u0), jnp.zeros_like(_f(u0))])
+
+    def rate(self, state, u_command):
+        w = 2 * jnp.pi * self.frequency
+        acc = w**2 * (u_command - state[0]) - 2 * self.damping * w * state[1]
+        return jnp.stack([state[1], acc])
+
+    def voltage(self, state, u_command):
+        return state[0]
+
+
+class SlewLimitedInput(AbstractInputStage):
+    """Drive amplifier with a slew-rate limit: ``ṡ = S·tanh((u − s)/(S·τ))``.
+
+    Small differences follow the command with time constant ``τ``; large ones at the
+    slew rate ``S`` at most (the tanh is the smooth saturation, so the stage stays
+    differentiable). Attributes: ``slew`` S [V/s], ``tau`` [s].
+    """
+
+    slew: Float[Array, ""]
+    tau: Float[Array, ""]
+
+    def __init__(self, slew, tau):
+        self.slew = _f(slew)
+        self.tau = _f(tau)
+
+    @property
+    def n_states(self) -> int:
+        return 1
+
+    def initial_state(self, u0):
+        return jnp.atleast_1d(_f(u0))
+
+    def rate(self, state, u_command):
+        return self.slew * jnp.tanh((u_command - state) / (self.slew * self.tau))
+
+    def voltage(self, state, u_command):
+        return state[0]
+
+
+# ---- extensions ---------------------------------------------------------------------
+class Creep(AbstractExtension):
+    """First-order creep of the piezo stroke: ``τ·ċ = gain·u − c``, stroke += ``c``.
+
+    After a voltage change the stroke keeps moving by ``gain·Δu`` with time constant
+    ``τ``. At rest ``c = gain·u``. Attributes: ``gain`` [m/V], ``tau`` [s].
+    """
+
+    gain: Float[Array, ""]
+    tau: Float[Array, ""]
+
+    def __init__(self, gain, tau):
+        self.gain = _f(gain)
+        self.tau = _f(tau)
+
+    @property
+    def n_states(self) -> int:
+        return 1
+
+    def initial_state(self, u0):
+        return jnp.atleast_1d(self.gain * _f(u0))
+
+    def rate(self, state, core: CoreState, drive: DriveContext):
+        return (self.gain * core.u - state) / self.tau
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(stroke=state[0])
+
+
+class RateDependentStroke(AbstractExtension):
+    """Rate-dependent hysteresis, first order: the stroke lags by ``gain·(u − s)``
+    where ``s`` follows the voltage with time constant ``τ``, i.e. by
+    ``gain·τ·u̇`` for slow changes, saturating for fast ones (the Hammerstein form of
+    a rate-dependent Prandtl-Ishlinskii loop: the loop widens with the drive rate).
+
+    Attributes: ``gain`` [m/V] (> 0 widens the loop), ``tau`` [s].
+    """
+
+    gain: Float[Array, ""]
+    tau: Float[Array, ""]
+
+    def __init__(self, gain, tau):
+        self.gain = _f(gain)
+        self.tau = _f(tau)
+
+    @property
+    def n_states(self) -> int:
+        return 1
+
+    def initial_state(self, u0):
+        return jnp.atleast_1d(_f(u0))
+
+    def rate(self, state, core, drive):
+        return (core.u - state) / self.tau
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(stroke=-self.gain * (core.u - state[0]))
+
+
+class StructuralMode(AbstractExtension):
+    """A resonance of the mount, guide or base that the sensor sees.
+
+    The mount moves by ``x_b`` with ``ẍ_b = ω²(compliance·Ff − x_b) − 2ζω·ẋ_b``:
+    excited by the contact force Ff [N] (the force the actuator passes to its base),
+    statically ``x_b = compliance·Ff``; the sensor reads ``q + x_b``.
+
+    Attributes: ``frequency`` [Hz], ``damping`` ζ [-], ``compliance`` [m/N] (signed:
+    the sensor may see the mount move either way).
+    """
+
+    frequency: Float[Array, ""]
+    damping: Float[Array, ""]
+    compliance: Float[Array, ""]
+
+    def __init__(self, frequency, damping, compliance):
+        self.frequency = _f(frequency)
+        self.damping = _f(damping)
+        self.compliance = _f(compliance)
+
+    @property
+    def n_states(self) -> int:
+        return 2
+
+    def initial_state(self, u0):
+        return jnp.zeros(2) + 0.0 * _f(u0)
+
+    def rate(self, state, core, drive):
+        w = 2 * jnp.pi * self.frequency
+        acc = w**2 * (self.compliance * core.ff - state[0]) - 2 * self.damping * w * state[1]
+        return jnp.stack([state[1], acc])
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(output=state[0])
+
+
+class PositionRipple(AbstractExtension):
+    """A force on the slider periodic in its position: ``F = amplitude·sin(2π·x2/λ)``
+    (a waviness of the guide, cogging). In no catalogue; used to test that the
+    diagnosis says "unexplained" rather than a wrong name.
+
+    Attributes: ``amplitude`` [N], ``wavelength`` λ [m].
+    """
+
+    amplitude: Float[Array, ""]
+    wavelength: Float[Array, ""]
+
+    def __init__(self, amplitude, wavelength):
+        self.amplitude = _f(amplitude)
+        self.wavelength = _f(wavelength)
+
+    @property
+    def n_states(self) -> int:
+        return 0
+
+    def initial_state(self, u0):
+        return jnp.zeros((0,)) + 0.0 * _f(u0)
+
+    def rate(self, state, core, drive):
+        return jnp.zeros((0,))
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(force_slider=self.amplitude
+                              * jnp.sin(2 * jnp.pi * core.x2 / self.wavelength))
+
+
+LEARNED_FEATURES = ("x2", "v2", "xdot", "tanh_xdot", "u", "x1_minus_stroke")
+"""Library of the learned force correction, each scaled to O(1) by :class:`LearnedForce`."""
+
+
+class LearnedForce(AbstractExtension):
+    """Data-driven force on the slider: ``F = Σ_k c_k·φ_k(state)`` [N].
+
+    The library (:data:`LEARNED_FEATURES`, each divided by its ``scales`` entry to be
+    O(1)): slider position x2 [m], slider velocity v2 [m/s], relative velocity
+    ẋ = v1 − v2 [m/s], ``tanh(ẋ/scale)`` (a smoothed Coulomb term), piezo voltage u
+    [V], piezo compression x1 − Γ [m]. Coefficients ``coef`` [N]; fitted by sparse
+    regression (fit, drop the small ones, refit), the universal-differential-equation
+    fallback of the diagnosis.
+    """
+
+    coef: Float[Array, " k"]
+    scales: tuple[float, ...] = eqx.field(static=True)
+
+    def __init__(self, coef, scales):
+        self.coef = _f(coef)
+        self.scales = tuple(float(s) for s in scales)
+
+    @property
+    def n_states(self) -> int:
+        return 0
+
+    def initial_state(self, u0):
+        return jnp.zeros((0,)) + 0.0 * _f(u0)
+
+    def rate(self, state, core, drive):
+        return jnp.zeros((0,))
+
+    def features(self, core: CoreState):
+        """The scaled library at the current state, shape (k,)."""
+        s = self.scales
+        xdot = core.v1 - core.v2
+        return jnp.stack([core.x2 / s[0], core.v2 / s[1], xdot / s[2], jnp.tanh(xdot / s[3]),
+                          core.u / s[4], (core.x1 - core.stroke) / s[5]])
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(force_slider=jnp.dot(self.coef, self.features(core)))
+
+
+# ---- output maps --------------------------------------------------------------------
+def delayed(t, q, delay):
+    """``q(t − delay)`` by linear interpolation between samples (uniform ``t`` [s]);
+    before the trace starts the first value holds. Differentiable in ``delay`` [s]
+    (from 0: the derivative is the backward difference)."""
+    dt = t[1] - t[0]
+    shift = jnp.maximum(delay, 0.0) / dt
+    whole = jnp.floor(shift)
+    frac = shift - whole
+    idx = jnp.arange(q.shape[0]) - whole.astype(int)
+    a = q[jnp.clip(idx, 0, q.shape[0] - 1)]
+    b = q[jnp.clip(idx - 1, 0, q.shape[0] - 1)]
+    return (1.0 - frac) * a + frac * b
+
+
+class SensorOutput(AbstractOutputMap):
+    """Interferometer with a delay and a linear drift: ``q(t − delay) + drift·t``.
+
+    Attributes: ``delay`` [s] (≥ 0), ``drift`` [m/s].
+    """
+
+    delay: Float[Array, ""]
+    drift: Float[Array, ""]
+
+    def __init__(self, delay=0.0, drift=0.0):
+        self.delay = _f(delay)
+        self.drift = _f(drift)
+
+    def __call__(self, t, q):
+        return delayed(t, q, self.delay) + self.drift * t
+
+
+class ExponentialDrift(AbstractOutputMap):
+    """Thermal drift settling exponentially: ``q + amplitude·(1 − exp(−t/time))``.
+
+    Attributes: ``amplitude`` [m], ``time`` [s].
+    """
+
+    amplitude: Float[Array, ""]
+    time: Float[Array, ""]
+
+    def __init__(self, amplitude, time):
+        self.amplitude = _f(amplitude)
+        self.time = _f(time)
+
+    def __call__(self, t, q):
+        return q + self.amplitude * (1.0 - jnp.exp(-t / self.time))
+
+
+class ChainedOutput(AbstractOutputMap):
+    """Output maps applied one after the other (first in the tuple first)."""
+
+    maps: tuple[AbstractOutputMap, ...]
+
+    def __call__(self, t, q):
+        for m in self.maps:
+            q = m(t, q)
+        return q

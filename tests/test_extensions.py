@@ -1,0 +1,113 @@
+"""Model extensions of the diagnosis catalogue: zero settings, known responses."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import stickslip_jax as ss
+from stickslip_jax.diagnose import CATALOGUE, NAMES
+from stickslip_jax.diagnose.run import _install_probes
+from stickslip_jax.model.extensions import (
+    ChainedOutput,
+    Creep,
+    ExponentialDrift,
+    LowPassInput,
+    SensorOutput,
+    delayed,
+)
+from stickslip_jax.synthetic import DriveSpec
+
+REQUIRED = ("creep", "stribeck", "viscous_friction", "contact_damping",
+            "rate_dependent_hysteresis", "drive_bandwidth", "structural_mode", "sensor_delay",
+            "sensor_drift", "external_load", "preload_dependence")
+
+
+def test_catalogue_has_the_required_names():
+    assert set(REQUIRED) <= set(NAMES)
+    slots = {c.name: c.slot for c in CATALOGUE}
+    assert slots["drive_bandwidth"] == "input_stage"
+    assert slots["sensor_delay"] == slots["sensor_drift"] == "output_map"
+    assert slots["creep"] == slots["structural_mode"] == "extension"
+
+
+@pytest.fixture(scope="module")
+def saw():
+    rec = DriveSpec("sawtooth", 40.0, 500.0, "forward", 0.008).recording()
+    return rec, jnp.asarray(rec.voltage_V)
+
+
+def test_every_probe_at_zero_strength_is_the_baseline(saw):
+    """All probes installed at once (the score test's actuator) leave q unchanged."""
+    rec, u = saw
+    base = ss.lu2015_slc1720()
+    probe_act, entries = _install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0]})
+    assert len(entries) >= 12
+    assert probe_act.n_states > base.n_states
+    q0 = ss.simulate(base, u, dt=rec.dt)
+    q1 = ss.simulate(probe_act, u, dt=rec.dt)
+    assert float(jnp.max(jnp.abs(q1 - q0))) < 1e-15
+    # ...and each strength moves it.
+    for _, probe, _, spec in entries:
+        value = spec.getter(probe_act)
+        moved = eqx.tree_at(spec.getter, probe_act, value + 20 * spec.scale)
+        dq = ss.simulate(moved, u, dt=rec.dt) - q0
+        assert float(jnp.max(jnp.abs(dq))) > 1e-10, probe.label
+
+
+def test_delay_interpolates_between_samples():
+    t = jnp.arange(10) * 1e-3
+    q = jnp.arange(10.0) ** 2
+    out = delayed(t, q, 2.5e-3)
+    # q(t - 2.5 ms) by linear interpolation: mean of q[k-2] and q[k-3].
+    np.testing.assert_allclose(out[5:], 0.5 * (q[3:8] + q[2:7]))
+    assert float(out[0]) == 0.0
+    np.testing.assert_allclose(SensorOutput(0.0, 2e-6)(t, q), q + 2e-6 * t)
+    chained = ChainedOutput((SensorOutput(1e-3), ExponentialDrift(1.0, 1e-3)))
+    np.testing.assert_allclose(chained(t, q)[3], q[2] + 1 - np.exp(-3.0))
+
+
+def test_creep_settles_to_its_gain_with_its_time_constant():
+    """A 40 V step: the creep stroke approaches gain·40 V as 1 − exp(−t/τ)."""
+    base = ss.lu2015_slc1720()
+    rec = DriveSpec("step", 40.0, duration_s=0.03).recording()
+    u = jnp.asarray(rec.voltage_V)
+    gain, tau = 5e-10, 4e-3
+    q0 = np.asarray(ss.simulate(base, u, dt=rec.dt))
+    q1 = np.asarray(ss.simulate(base.with_extension(Creep(gain, tau)), u, dt=rec.dt))
+    k_step = int(np.argmax(np.asarray(u) > 1.0))
+    t = rec.time_s[k_step:] - rec.time_s[k_step]
+    d = q1[k_step:] - q0[k_step:]
+    # While the slider sticks it is carried with the tip, so q = x1 + x2 moves by
+    # twice a slow stroke change (less the small compliance of the contact).
+    static = d[-1] / (gain * 40.0 * (1 - np.exp(-t[-1] / tau)))
+    assert 1.9 < static < 2.02
+    expected = static * gain * 40.0 * (1 - np.exp(-t / tau))
+    late = t > 2e-3  # after the ringing of the step
+    assert np.max(np.abs(d[late] - expected[late])) < 0.02 * static * gain * 40.0
+
+
+def test_low_pass_input_follows_a_step_exponentially(saw):
+    """The stage alone: a 0 → 10 V command step reaches the piezo as 10·(1 − e^(−t/τ))
+    (RK4 on the stage's own rate); the mix blends it with the command."""
+    tau = 20e-6
+    stage = LowPassInput(tau, mix=1.0)
+    h, s = 1e-7, stage.initial_state(0.0)
+    for _ in range(400):  # 40 µs = 2 τ
+        k1 = stage.rate(s, 10.0)
+        k2 = stage.rate(s + 0.5 * h * k1, 10.0)
+        k3 = stage.rate(s + 0.5 * h * k2, 10.0)
+        k4 = stage.rate(s + h * k3, 10.0)
+        s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    np.testing.assert_allclose(float(stage.voltage(s, 10.0)), 10 * (1 - np.exp(-2.0)),
+                               rtol=1e-9)
+    half = LowPassInput(tau, mix=0.5)
+    np.testing.assert_allclose(float(half.voltage(s, 10.0)), 5 + 5 * (1 - np.exp(-2.0)),
+                               rtol=1e-9)
+    # In the simulator: a 20 µs amplifier changes a stepping trace by well over the noise.
+    rec, u = saw
+    base = ss.lu2015_slc1720()
+    act = eqx.tree_at(lambda a: a.input_stage, base, LowPassInput(tau))
+    assert not act.stroke_follows_command
+    dq = np.asarray(ss.simulate(act, u, dt=rec.dt) - ss.simulate(base, u, dt=rec.dt))
+    assert 1e-8 < np.max(np.abs(dq)) < 1e-6
