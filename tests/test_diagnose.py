@@ -1,0 +1,117 @@
+"""`diagnose` on concealed-effect sets (reduced protocol): names the hidden effect
+first, removes at least half of the NRMSE excess over the noise floor, adds nothing to
+the null set, and says "unexplained" for an effect in no catalogue.
+
+The reduced protocol (8 recordings of 0.02-0.06 s: step, sine, scanning and stepping
+sawtooth at 100 and 500 Hz, both directions) keeps one diagnosis near a minute; the
+full 17-recording protocol on every set of fixtures/concealed/ is
+benchmarks/bench_diagnose.py. The baseline starts from the truth without the effect
+(as `stickslip diagnose --params truth.json --skip-identify`): these tests are about
+the diagnosis, the identification has its own.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import stickslip_jax as ss
+from stickslip_jax.diagnose import diagnose, with_effect
+from stickslip_jax.synthetic import paper_protocol, simulate_set
+
+ROOT = Path(__file__).resolve().parent.parent
+TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
+
+NAMED = ["sensor_delay", "structural_mode", "creep"]
+"""Effects the reduced protocol shows clearly enough for the test to demand the name."""
+
+
+@pytest.fixture(scope="module")
+def base():
+    return ss.load_params(TRUTH)
+
+
+def reduced_set(base, effect, seed=7):
+    specs = paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(100.0, 500.0),
+                           step_duration_s=0.03, sine_periods=2)
+    return simulate_set(with_effect(base, effect), specs, noise_m=1e-9, seed=seed)
+
+
+def run(base, effect, **kw):
+    recs = reduced_set(base, effect)
+    kw = {"max_rounds": 1, "top": 2, "max_steps": 20, **kw}
+    return recs, diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(), **kw)
+
+
+def excess_removed(d, recs) -> float:
+    floor = np.mean([a.noise_m / np.ptp(r.position_m)
+                     for a, r in zip(d.analyses_baseline, recs, strict=True)])
+    before, after = d.nrmse_baseline.mean(), d.nrmse_final.mean()
+    return (before - after) / (before - floor)
+
+
+@pytest.mark.parametrize("effect", NAMED)
+def test_names_the_hidden_effect_first(base, effect):
+    recs, d = run(base, effect, fallback=False)
+    assert d.accepted, f"nothing accepted for {effect}; rounds: {d.rounds}"
+    assert d.accepted[0].name == effect
+    assert d.verdict == "augmented"
+    assert d.mismatch, "the baseline mismatch was not located"
+    assert excess_removed(d, recs) >= 0.5
+    assert d.accepted[0].criterion_delta < -10
+
+
+def test_null_set_adds_nothing(base):
+    recs, d = run(base, "none")
+    assert d.verdict == "baseline adequate"
+    assert d.accepted == [] and d.unexplained is None
+    assert d.chi2_baseline < 1.1
+    np.testing.assert_allclose(d.nrmse_final, d.nrmse_baseline)
+    # Every entry's score stays in the range of χ²(1) noise.
+    assert max(abs(r.score) for r in d.rounds[0]) < 30
+    assert "preload_dependence" in d.not_testable
+
+
+def test_an_effect_in_no_catalogue_is_not_named(base):
+    recs, d = run(base, "uncatalogued")
+    assert d.accepted == [], [c.name for c in d.accepted]
+    assert d.verdict == "unexplained residual"
+    assert d.unexplained is not None and d.unexplained["where"]
+
+
+def test_cli_writes_the_diagnosis(base, tmp_path):
+    from typer.testing import CliRunner
+
+    from stickslip_jax.cli.main import app
+
+    recs = reduced_set(base, "sensor_delay")[2:7]
+    data = tmp_path / "data"
+    data.mkdir()
+    for r in recs:
+        ss.save_recording(r, data / f"{r.name}.csv")
+    out = tmp_path / "out"
+    args = ["diagnose", str(data), "--out", str(out), "--params", str(TRUTH),
+            "--skip-identify", "--fix", "Ms=0.0247", "--candidates",
+            "sensor_delay,creep,external_load", "--max-rounds", "1", "--top", "1",
+            "--max-steps", "15"]
+    runner = CliRunner()
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output[-3000:]
+    assert "verdict: augmented" in res.output
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert set(d) >= {"baseline", "mismatch", "missing_physics", "final", "verdict"}
+    assert d["verdict"] == "augmented"
+    m = d["missing_physics"][0]
+    assert m["name"] == "sensor_delay"
+    assert m["nrmse_after"] < 0.5 * m["nrmse_before"]
+    assert 10e-6 < m["params"]["sensor_delay"] < 20e-6  # the hidden delay is 15 µs
+    assert {"recording", "regime", "time_s", "band_Hz", "statistic"} <= set(d["mismatch"][0])
+    assert len(d["baseline"]["per_recording"]) == len(recs)
+    report = (out / "report.md").read_text()
+    assert "sensor_delay" in report and (out / "figures" / "residual_map.png").exists()
+    # Nothing is replaced without --force; unknown entries are refused.
+    again = runner.invoke(app, args)
+    assert again.exit_code == 2 and "--force" in again.output
+    bad = runner.invoke(app, args[:3] + ["--candidates", "magic"])
+    assert bad.exit_code == 2 and "magic" in bad.output
