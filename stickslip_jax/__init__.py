@@ -7,6 +7,7 @@ The library never changes global JAX settings. Enable double precision before us
     jax.config.update("jax_enable_x64", True)
 """
 
+from .diagnose import CATALOGUE, Diagnosis, diagnose
 from .files import InputOverwriteError, OutputExistsError
 from .identify import HysteresisOnlyModel, Identification, fit_hysteresis_only, identify
 from .io import (
@@ -37,6 +38,19 @@ from .model.base import (
     CoreState,
     DriveContext,
     ExtensionTerms,
+)
+from .model.extensions import (
+    ChainedOutput,
+    Creep,
+    ExponentialDrift,
+    LearnedForce,
+    LowPassInput,
+    PositionRipple,
+    RateDependentStroke,
+    SecondOrderInput,
+    SensorOutput,
+    SlewLimitedInput,
+    StructuralMode,
 )
 from .model.friction import (
     ConstantZssElastoPlastic,
@@ -88,4 +102,8 @@ __all__ = [
     "simulate_batch", "simulate_recording", "simulate_recordings", "sine", "stack_drives",
     "step", "transition_alpha",
     "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
+    "CATALOGUE", "Diagnosis", "diagnose",
+    "ChainedOutput", "Creep", "ExponentialDrift", "LearnedForce", "LowPassInput",
+    "PositionRipple", "RateDependentStroke", "SecondOrderInput", "SensorOutput",
+    "SlewLimitedInput", "StructuralMode",
 ]

@@ -23,7 +23,7 @@ from stickslip_jax.synthetic import paper_protocol, simulate_set
 ROOT = Path(__file__).resolve().parent.parent
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
 
-NAMED = ["sensor_delay", "structural_mode", "creep"]
+NAMED = ["sensor_delay", "structural_mode", "creep", "external_load", "contact_damping"]
 """Effects the reduced protocol shows clearly enough for the test to demand the name."""
 
 
@@ -40,7 +40,7 @@ def reduced_set(base, effect, seed=7):
 
 def run(base, effect, **kw):
     recs = reduced_set(base, effect)
-    kw = {"max_rounds": 1, "top": 2, "max_steps": 20, **kw}
+    kw = {"max_rounds": 1, "top": 2, "max_steps": 20, "size_at_most": 3, **kw}
     return recs, diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(), **kw)
 
 
