@@ -402,7 +402,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             res.rss_before, res.rss_after = rss, rss_new
             res.nrmse_before, res.nrmse_after = nrmse_now, float(nrmse_new.mean())
             res.criterion_delta = rss_new - rss + k * np.log(n_obs)
-            res.explained = (rss - rss_new) / excess
+            # Share of the excess over the noise; undefined when the residual is
+            # already at the noise level (then only the criterion and (e/σ)² speak).
+            res.explained = (rss - rss_new) / excess if excess > 0.01 * n_obs else np.nan
             res.chi2_after = rss_new / n_obs
             res.wall_s = time.perf_counter() - t0
         refitted = sorted([r for r in results if r.refitted], key=lambda r: r.criterion_delta)
@@ -414,7 +416,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             r.name for r in refitted[1:]
             if r.criterion_delta < BIC_MIN and r.criterion_delta <= INDISTINGUISHABLE
             * best.criterion_delta]
-        explains = best.explained >= EXPLAINED_MIN or best.chi2_after <= ADEQUATE_CHI2
+        explains = (bool(np.isfinite(best.explained) and best.explained >= EXPLAINED_MIN)
+                    or best.chi2_after <= ADEQUATE_CHI2)
         if best.criterion_delta < BIC_MIN and explains:
             best.accepted = True
             accepted.append(best)
