@@ -113,36 +113,30 @@ def _pi_slope(act: Actuator) -> float:
 
 
 # ---- entries -------------------------------------------------------------------------
-def _creep_probes(act, hints):
-    w = _pi_slope(act)
-    return [Probe(f"creep tau={tau * 1e3:g} ms", None,
-                  ParameterSpec(None, "linear", 0.01 * w, "m/V"), +1, {"tau": tau},
-                  Creep(0.0, tau), "gain")
-            for tau in (1e-3, 5e-3, 25e-3)]
+def _first_order_entry(cls, label: str, prefix: str, taus: tuple[float, ...]):
+    """Probes and attach for an extension ``cls(gain [m/V], tau [s])`` (creep, rate lag):
+    one probe per time constant in ``taus``; the refit frees gain and tau."""
+    def probes(act, hints):
+        w = _pi_slope(act)
+        return [Probe(f"{label} tau={tau * 1e3:g} ms", None,
+                      ParameterSpec(None, "linear", 0.01 * w, "m/V"), +1, {"tau": tau},
+                      cls(0.0, tau), "gain")
+                for tau in taus]
+
+    def attach(act, strength, probe):
+        new = act.with_extension(cls(strength, probe.setting["tau"]))
+        g = _ext(cls)
+        return new, {f"{prefix}_gain": ParameterSpec(lambda a: g(a).gain, "linear",
+                                                     probe.strength_scale(strength), "m/V"),
+                     f"{prefix}_tau": ParameterSpec(lambda a: g(a).tau, "log", 1.0, "s")}
+
+    return probes, attach
 
 
-def _creep_attach(act, strength, probe):
-    new = act.with_extension(Creep(strength, probe.setting["tau"]))
-    g = _ext(Creep)
-    return new, {"creep_gain": ParameterSpec(lambda a: g(a).gain, "linear",
-                                             probe.strength_scale(strength), "m/V"),
-                 "creep_tau": ParameterSpec(lambda a: g(a).tau, "log", 1.0, "s")}
-
-
-def _rate_probes(act, hints):
-    w = _pi_slope(act)
-    return [Probe(f"rate lag tau={tau * 1e3:g} ms", None,
-                  ParameterSpec(None, "linear", 0.01 * w, "m/V"), +1, {"tau": tau},
-                  RateDependentStroke(0.0, tau), "gain")
-            for tau in (0.1e-3, 1e-3)]
-
-
-def _rate_attach(act, strength, probe):
-    new = act.with_extension(RateDependentStroke(strength, probe.setting["tau"]))
-    g = _ext(RateDependentStroke)
-    return new, {"rate_gain": ParameterSpec(lambda a: g(a).gain, "linear",
-                                           probe.strength_scale(strength), "m/V"),
-                 "rate_tau": ParameterSpec(lambda a: g(a).tau, "log", 1.0, "s")}
+_creep_probes, _creep_attach = _first_order_entry(Creep, "creep", "creep",
+                                                  (1e-3, 5e-3, 25e-3))
+_rate_probes, _rate_attach = _first_order_entry(RateDependentStroke, "rate lag", "rate",
+                                                (0.1e-3, 1e-3))
 
 
 def _mode_probes(act, hints):

@@ -24,14 +24,14 @@ def _finite(x):
     return x if np.isfinite(x) else None
 
 
-def _per_recording(d: Diagnosis, nrmse, analyses) -> list[dict]:
+def _per_recording(nrmse, analyses) -> list[dict]:
     return [{"recording": a.recording, "regime": a.regime, "nrmse": float(n),
              "chi2_per_sample": a.chi2, "noise_nm": a.noise_m * 1e9,
              "rms_residual_nm": a.rms_residual_m * 1e9}
             for a, n in zip(analyses, nrmse, strict=True)]
 
 
-def _evidence(c, analyses) -> dict:
+def _evidence(c) -> dict:
     return {"score_statistic": c.score, "probe": c.probe, "sizing_drop": c.size_drop,
             "explained_share_of_excess": _finite(c.explained),
             "chi2_per_sample_after": _finite(c.chi2_after),
@@ -40,7 +40,7 @@ def _evidence(c, analyses) -> dict:
 
 def diagnosis_dict(d: Diagnosis) -> dict:
     """The content of ``diagnosis.json``."""
-    missing = [{"name": c.name, "evidence": _evidence(c, d.analyses_baseline),
+    missing = [{"name": c.name, "evidence": _evidence(c),
                 "params": c.params, "nrmse_before": c.nrmse_before,
                 "nrmse_after": c.nrmse_after, "criterion_delta": c.criterion_delta}
                for c in d.accepted]
@@ -53,13 +53,12 @@ def diagnosis_dict(d: Diagnosis) -> dict:
     out = {
         "baseline": {"nrmse": float(d.nrmse_baseline.mean()),
                      "chi2_per_sample": d.chi2_baseline,
-                     "per_recording": _per_recording(d, d.nrmse_baseline,
-                                                     d.analyses_baseline)},
+                     "per_recording": _per_recording(d.nrmse_baseline, d.analyses_baseline)},
         "mismatch": d.mismatch,
         "missing_physics": missing,
         "final": {"nrmse": float(d.nrmse_final.mean()), "chi2_per_sample": d.chi2_final,
                   "terms": d.terms,
-                  "per_recording": _per_recording(d, d.nrmse_final, d.analyses_final)},
+                  "per_recording": _per_recording(d.nrmse_final, d.analyses_final)},
         "verdict": d.verdict,
         "criterion": CRITERION,
         "score_test": f"Lagrange-multiplier score of each entry's first-order signature, "
@@ -194,10 +193,15 @@ def plot_residual_map(d: Diagnosis, path):
     plt.close(fig)
 
 
+def _worst(d: Diagnosis, n: int) -> np.ndarray:
+    """Indices of the ``n`` recordings with the largest baseline (e/σ)²."""
+    return np.argsort([-a.chi2 for a in d.analyses_baseline])[:n]
+
+
 def plot_overlays(d: Diagnosis, path, n: int = 4):
     """Measured vs baseline vs final, and both residuals, for the worst recordings."""
     plt = _pyplot()
-    order = np.argsort([-a.chi2 for a in d.analyses_baseline])[:n]
+    order = _worst(d, n)
     fig, axes = plt.subplots(2, len(order), figsize=(3.6 * len(order), 5.2), squeeze=False)
     for j, i in enumerate(order):
         rec = d.data.recordings[i]
@@ -224,7 +228,7 @@ def plot_overlays(d: Diagnosis, path, n: int = 4):
 def plot_residual_psd(d: Diagnosis, path, n: int = 4):
     """Residual PSD over the noise level, baseline and final, worst recordings."""
     plt = _pyplot()
-    order = np.argsort([-a.chi2 for a in d.analyses_baseline])[:n]
+    order = _worst(d, n)
     fig, ax = plt.subplots(figsize=(6.5, 4))
     for i in order:
         rec = d.data.recordings[i]

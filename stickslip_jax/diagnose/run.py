@@ -204,8 +204,9 @@ def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
     probe_act, entries = _install_probes(act, candidates, hints)
     names = base_names + [e[2] for e in entries]
     specs = {e[2]: e[3] for e in entries}
-    res = problem.residuals(ParameterMap.make(probe_act, names, specs))
-    theta = jnp.zeros(len(ParameterMap.make(probe_act, names, specs).labels()))
+    pmap = ParameterMap.make(probe_act, names, specs)
+    res = problem.residuals(pmap)
+    theta = pmap.zeros()
     jac = np.asarray(jax.jit(jax.jacfwd(res))(theta))
     r = np.asarray(res(theta))
     n_base = jac.shape[1] - len(entries)
@@ -235,16 +236,16 @@ def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
     return out
 
 
-def _learned_scales(problem: _Problem, q: np.ndarray) -> tuple[float, ...]:
+def _learned_scales(problem: _Problem) -> tuple[float, ...]:
     travel = max(float(np.max(np.ptp(problem.data.measured, axis=1))), 1e-9)
     u = max(float(np.max(np.abs(problem.data.voltages))), 1.0)
     return (travel, 1e-3, 1e-3, 1e-4, u, 1e-7)
 
 
-def _fit_learned(problem: _Problem, act: Actuator, base_names, rss0: float, q: np.ndarray,
+def _fit_learned(problem: _Problem, act: Actuator, base_names, rss0: float,
                  max_steps: int) -> dict:
     """Sparse regression of a force correction (fit, drop |t| < 4, refit)."""
-    scales = _learned_scales(problem, q)
+    scales = _learned_scales(problem)
     keep = list(range(len(LEARNED_FEATURES)))
     fitted, rss = act, rss0
     for stage in ("full", "sparse"):
@@ -395,7 +396,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             fitted, rss_new, _ = problem.fit(start, base_names + list(specs), specs,
                                              label=f"refit {cand.name}", max_steps=max_steps)
             rss_new, nrmse_new, _ = problem.evaluate(fitted)
-            k = sum(np.size(getattr_path(fitted, s.getter)) for s in specs.values())
+            k = sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values())
             res.refitted = True
             res.actuator = fitted
             res.params = {n: float(np.asarray(s.getter(fitted))) for n, s in specs.items()}
@@ -449,7 +450,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             "force correction")
         analyses_now = [analyse_recording(r, qf[i], sigmas[i])
                         for i, r in enumerate(data.recordings)]
-        learned = _fit_learned(problem, act, base_names, rss_final, qf, max_steps)
+        learned = _fit_learned(problem, act, base_names, rss_final, max_steps)
         k = len(learned["features"])
         delta = learned["rss"] - rss_final + k * np.log(n_obs)
         where = mismatch_entries(analyses_now)[:3]
@@ -476,8 +477,3 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     return Diagnosis(data, sigmas, baseline, act, nrmse0, nrmse_f, chi2_0, rss_final / n_obs,
                      analyses0, analyses_f, mismatch, accepted, rounds, not_testable,
                      unexplained, verdict, q0, qf, _terms(act), timings, notes)
-
-
-def getattr_path(act: Actuator, getter) -> np.ndarray:
-    """The value ``getter`` selects in ``act``."""
-    return np.asarray(getter(act))

@@ -225,7 +225,21 @@ class StructuralMode(AbstractExtension):
         return ExtensionTerms(output=state[0])
 
 
-class PositionRipple(AbstractExtension):
+class _ForceOnly(AbstractExtension):
+    """An extension without states of its own (only additive terms)."""
+
+    @property
+    def n_states(self) -> int:
+        return 0
+
+    def initial_state(self, u0):
+        return jnp.zeros((0,)) + 0.0 * _f(u0)
+
+    def rate(self, state, core, drive):
+        return jnp.zeros((0,))
+
+
+class PositionRipple(_ForceOnly):
     """A force on the slider periodic in its position: ``F = amplitude·sin(2π·x2/λ)``
     (a waviness of the guide, cogging). In no catalogue; used to test that the
     diagnosis says "unexplained" rather than a wrong name.
@@ -240,16 +254,6 @@ class PositionRipple(AbstractExtension):
         self.amplitude = _f(amplitude)
         self.wavelength = _f(wavelength)
 
-    @property
-    def n_states(self) -> int:
-        return 0
-
-    def initial_state(self, u0):
-        return jnp.zeros((0,)) + 0.0 * _f(u0)
-
-    def rate(self, state, core, drive):
-        return jnp.zeros((0,))
-
     def terms(self, state, core, drive):
         return ExtensionTerms(force_slider=self.amplitude
                               * jnp.sin(2 * jnp.pi * core.x2 / self.wavelength))
@@ -259,7 +263,7 @@ LEARNED_FEATURES = ("x2", "v2", "xdot", "tanh_xdot", "u", "x1_minus_stroke")
 """Library of the learned force correction, each scaled to O(1) by :class:`LearnedForce`."""
 
 
-class LearnedForce(AbstractExtension):
+class LearnedForce(_ForceOnly):
     """Data-driven force on the slider: ``F = Σ_k c_k·φ_k(state)`` [N].
 
     The library (:data:`LEARNED_FEATURES`, each divided by its ``scales`` entry to be
@@ -276,16 +280,6 @@ class LearnedForce(AbstractExtension):
     def __init__(self, coef, scales):
         self.coef = _f(coef)
         self.scales = tuple(float(s) for s in scales)
-
-    @property
-    def n_states(self) -> int:
-        return 0
-
-    def initial_state(self, u0):
-        return jnp.zeros((0,)) + 0.0 * _f(u0)
-
-    def rate(self, state, core, drive):
-        return jnp.zeros((0,))
 
     def features(self, core: CoreState):
         """The scaled library at the current state, shape (k,)."""
