@@ -20,8 +20,9 @@ demo: setup
 lint: setup
 	$(BIN)/ruff check .
 
+# Two workers: the tests are single-threaded JAX loops, and this machine has two cores.
 test: setup lint
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -75,14 +75,32 @@ from .params import (
 from .signals import make_recording, sawtooth, sine, step
 from .simulate import (
     DEFAULT_SUBSTEPS,
+    Trajectory,
     drive_context,
     simulate,
     simulate_batch,
     simulate_recording,
     simulate_recordings,
+    simulate_states,
     stack_drives,
 )
 from .solvers import EULER, HEUN, RK4, SOLVERS, ExplicitRK
+from .sweep import (
+    DriveChoice,
+    DriveGrid,
+    VelocityMap,
+    ZbaPoints,
+    ZbaSurface,
+    drive_for_velocity,
+    fit_zba_points,
+    fit_zba_surface,
+    load_zba_surface,
+    step_vs_amplitude,
+    velocity_map,
+    with_zba_surface,
+    zero_amplitude_threshold,
+)
+from .synthetic import DriveSpec, paper_protocol, simulate_set
 
 __version__ = "0.1.0"
 
@@ -99,11 +117,16 @@ __all__ = [
     "actuator_from_params", "default_thresholds", "drive_context", "infer_drive",
     "load_params", "load_recording", "load_recordings", "lu2015_slc1720", "make_recording",
     "params_from_actuator", "save_params", "save_recording", "sawtooth", "simulate",
-    "simulate_batch", "simulate_recording", "simulate_recordings", "sine", "stack_drives",
+    "simulate_batch", "simulate_recording", "simulate_recordings", "simulate_states", "sine",
+    "stack_drives", "Trajectory",
     "step", "transition_alpha",
     "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
     "CATALOGUE", "Diagnosis", "diagnose",
     "ChainedOutput", "Creep", "ExponentialDrift", "LearnedForce", "LowPassInput",
     "PositionRipple", "RateDependentStroke", "SecondOrderInput", "SensorOutput",
     "SlewLimitedInput", "StructuralMode",
+    "DriveChoice", "DriveGrid", "VelocityMap", "ZbaPoints", "ZbaSurface", "drive_for_velocity",
+    "fit_zba_points", "fit_zba_surface", "load_zba_surface", "step_vs_amplitude",
+    "velocity_map", "with_zba_surface", "zero_amplitude_threshold",
+    "DriveSpec", "paper_protocol", "simulate_set",
 ]

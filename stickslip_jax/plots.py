@@ -1,4 +1,5 @@
-"""Figures the tools write (matplotlib, Agg backend: no screen needed)."""
+"""Figures the tools write (matplotlib figures outside pyplot: no screen needed, and the
+backend of a notebook or script that imports this package is left alone)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,24 @@ import numpy as np
 from .files import atomic_writer
 
 
-def _pyplot():
+def subplots(*args, figsize=None, **kwargs):
+    """A new ``(figure, axes)`` pair that lives outside pyplot's global state.
+
+    Same arguments as ``pyplot.subplots``. Nothing is shown and no backend is
+    selected, so writing figures from a notebook or a script never changes its
+    backend; save with :func:`save_figure` or ``display(fig)`` in a notebook.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*args, **kwargs)
+
+
+def colormap(name: str):
+    """A named matplotlib colormap."""
     import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return matplotlib.colormaps[name]
 
 
 def save_figure(fig, path: str | Path) -> Path:
@@ -24,7 +36,6 @@ def save_figure(fig, path: str | Path) -> Path:
     fmt = path.suffix.lstrip(".") or "png"
     with atomic_writer(path, "wb") as fh:
         fig.savefig(fh, format=fmt, dpi=130, bbox_inches="tight")
-    _pyplot().close(fig)
     return path
 
 
@@ -34,9 +45,8 @@ def plot_trace(time_s, voltage_V, q_sim_m, *, q_meas_m=None, title: str = "", pa
     ``time_s`` [s], ``voltage_V`` [V], ``q_sim_m`` and ``q_meas_m`` [m] (plotted in µm).
     Returns the figure, or writes it to ``path`` and returns the path.
     """
-    plt = _pyplot()
     t_ms = np.asarray(time_s) * 1e3
-    fig, (ax_u, ax_q) = plt.subplots(2, 1, sharex=True, figsize=(8, 5),
+    fig, (ax_u, ax_q) = subplots(2, 1, sharex=True, figsize=(8, 5),
                                      gridspec_kw={"height_ratios": [1, 2]})
     ax_u.plot(t_ms, voltage_V, color="tab:gray", lw=0.8)
     ax_u.set_ylabel("U [V]")

@@ -137,6 +137,71 @@ def simulate(
     return _simulate(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver)
 
 
+class Trajectory(eqx.Module):
+    """Per-sample states of one simulation (arrays of length T).
+
+    Attributes
+    ----------
+    t: time [s]; x1, v1: piezo tip position [m] and velocity [m/s]; x2, v2: slider
+    position [m] and velocity [m/s]; z: friction bristle strain [m]; friction: the
+    contact force Ff [N] on the slider (positive drags it forward); q: the mapped
+    output [m]; y: the whole integrated state, (T, n_states).
+    """
+
+    t: Float[Array, " T"]
+    x1: Float[Array, " T"]
+    v1: Float[Array, " T"]
+    x2: Float[Array, " T"]
+    v2: Float[Array, " T"]
+    z: Float[Array, " T"]
+    friction: Float[Array, " T"]
+    q: Float[Array, " T"]
+    y: Float[Array, "T N"]
+
+
+@partial(eqx.filter_jit)
+def _trajectory(actuator, voltage, dt, drive, substeps, solver):
+    carry, q0 = rest_carry(actuator, voltage[0], drive)
+    step = sample_stepper(actuator, dt, drive, substeps, solver)
+
+    def step_keep(c, u_pair):
+        c, q = step(c, u_pair)
+        return c, (c[0], q)
+
+    _, (ys, qs) = jax.lax.scan(step_keep, carry, (voltage[:-1], voltage[1:]))
+    ys = jnp.concatenate([carry[0][None], ys])
+    q = jnp.concatenate([q0[None], qs])
+    t = dt * jnp.arange(voltage.shape[0])
+    xdot = ys[:, 1] - ys[:, 3]
+    z = ys[:, 4]
+    zdot = jax.vmap(lambda zz, xd: actuator.friction.z_rate(zz, xd, drive))(z, xdot)
+    ff = jax.vmap(lambda zz, zd, xd: actuator.friction.force(zz, zd, xd, drive))(z, zdot, xdot)
+    return Trajectory(t, ys[:, 0], ys[:, 1], ys[:, 2], ys[:, 3], z, ff,
+                      actuator.output_map(t, q), ys)
+
+
+def simulate_states(
+    actuator: Actuator,
+    voltage: Float[Array, " T"],
+    *,
+    dt: float,
+    drive: DriveContext | None = None,
+    substeps: int = DEFAULT_SUBSTEPS,
+    solver: ExplicitRK = RK4,
+) -> Trajectory:
+    """Like :func:`simulate` but keeps every state at every sample (a :class:`Trajectory`).
+
+    For looking inside the model (the friction state z and force Ff through a
+    sawtooth period, the slider and piezo separately); ``simulate`` is leaner.
+    """
+    voltage = jnp.asarray(voltage, dtype=float)
+    if voltage.ndim != 1 or voltage.shape[0] < 2:
+        raise ValueError(f"voltage must be a 1-D array of at least 2 samples, got {voltage.shape}")
+    if drive is None:
+        drive = DriveContext.make()
+    return _trajectory(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver)
+
+
 @partial(eqx.filter_jit)
 def _simulate_batch(actuator, voltages, dts, drives, substeps, solver):
     return jax.vmap(_simulate, in_axes=(None, 0, 0, 0, None, None))(

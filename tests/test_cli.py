@@ -29,6 +29,14 @@ def test_help_and_version():
     assert run("--version").output.startswith("stickslip_jax ")
 
 
+@pytest.mark.parametrize("command", ["simulate", "params", "identify", "sweep", "zba-surface",
+                                     "drive", "diagnose"])
+def test_every_command_has_help_with_an_example(command):
+    res = run(command, "--help")
+    assert res.exit_code == 0
+    assert "Examples" in res.output and f"stickslip {command}" in res.output
+
+
 def test_generated_sawtooth_is_written_with_metadata(tmp_path):
     out = tmp_path / "trace.csv"
     res = run("simulate", "--waveform", "sawtooth", "--amplitude", 40, "--frequency", 500,

@@ -15,6 +15,9 @@ from stickslip_jax.identify import identify
 from stickslip_jax.identify.report import fit_summary, write_identification
 from stickslip_jax.synthetic import paper_protocol, simulate_set
 
+# One worker computes the module's expensive fixture once (pytest -n 2 --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("identify_fixture_fit")
+
 RECOVERED = ("Mp", "Dp", "Kp", "Ds", "rho0", "z_ba_forward", "z_ba_backward")
 # A start 30-50 % away from the truth, in both directions.
 START_FACTORS = {"Mp": 1.4, "Dp": 0.6, "Kp": 1.5, "Ds": 0.65, "rho0": 0.6,

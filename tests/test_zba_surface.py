@@ -22,6 +22,9 @@ from stickslip_jax.sweep import (
 )
 from stickslip_jax.synthetic import DriveSpec, simulate_set
 
+# One worker computes the module's expensive fixture once (pytest -n 2 --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("zba_surface_grid")
+
 AMPS, FREQS = (40.0, 55.0, 70.0), (100.0, 300.0, 600.0)
 
 

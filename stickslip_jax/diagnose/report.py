@@ -9,6 +9,7 @@ import numpy as np
 
 from ..files import atomic_write_text, check_output_path
 from ..identify.residuals import _psd
+from ..plots import subplots
 from .locate import residual_of
 from .run import ADEQUATE_CHI2, BIC_MIN, EXPLAINED_MIN, SCORE_MIN, Diagnosis
 
@@ -163,21 +164,11 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
     return "\n".join(lines)
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_residual_map(d: Diagnosis, path):
     """Mean (e/σ)² per recording, baseline and final, grouped by regime."""
-    plt = _pyplot()
     names = [a.recording for a in d.analyses_baseline]
     x = np.arange(len(names))
-    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(names)), 3.8))
+    fig, ax = subplots(figsize=(max(6, 0.45 * len(names)), 3.8))
     ax.bar(x - 0.2, [a.chi2 for a in d.analyses_baseline], 0.4, label="baseline")
     ax.bar(x + 0.2, [a.chi2 for a in d.analyses_final], 0.4, label="final")
     ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level")
@@ -190,7 +181,6 @@ def plot_residual_map(d: Diagnosis, path):
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _worst(d: Diagnosis, n: int) -> np.ndarray:
@@ -200,9 +190,8 @@ def _worst(d: Diagnosis, n: int) -> np.ndarray:
 
 def plot_overlays(d: Diagnosis, path, n: int = 4):
     """Measured vs baseline vs final, and both residuals, for the worst recordings."""
-    plt = _pyplot()
     order = _worst(d, n)
-    fig, axes = plt.subplots(2, len(order), figsize=(3.6 * len(order), 5.2), squeeze=False)
+    fig, axes = subplots(2, len(order), figsize=(3.6 * len(order), 5.2), squeeze=False)
     for j, i in enumerate(order):
         rec = d.data.recordings[i]
         t = rec.time_s * 1e3
@@ -222,14 +211,12 @@ def plot_overlays(d: Diagnosis, path, n: int = 4):
     axes[1, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def plot_residual_psd(d: Diagnosis, path, n: int = 4):
     """Residual PSD over the noise level, baseline and final, worst recordings."""
-    plt = _pyplot()
     order = _worst(d, n)
-    fig, ax = plt.subplots(figsize=(6.5, 4))
+    fig, ax = subplots(figsize=(6.5, 4))
     for i in order:
         rec = d.data.recordings[i]
         level = d.sigmas[i] ** 2 * rec.dt
@@ -243,4 +230,3 @@ def plot_residual_psd(d: Diagnosis, path, n: int = 4):
     ax.legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

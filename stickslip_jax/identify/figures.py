@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plots import _pyplot, save_figure
+from ..plots import colormap, save_figure, subplots
 from .dataset import period_ends, step_lengths
 from .initial import stroke_along
 from .residuals import log_psd
@@ -23,8 +23,7 @@ def _finish(fig, path):
 def plot_psd_overlay(recs, q_sims, *, title: str, path: str | Path | None = None,
                      band=(20.0, 12_500.0)):
     """Measured vs simulated PSD [m²/Hz] of each recording, one panel per recording."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, len(recs), figsize=(5.2 * len(recs), 3.6), squeeze=False)
+    fig, axes = subplots(1, len(recs), figsize=(5.2 * len(recs), 3.6), squeeze=False)
     for ax, rec, q in zip(axes[0], recs, q_sims, strict=True):
         f, lp_m = log_psd(rec.position_m, rec.dt, band=band, xp=np)
         _, lp_s = log_psd(q, rec.dt, band=band, xp=np)
@@ -43,10 +42,9 @@ def plot_psd_overlay(recs, q_sims, *, title: str, path: str | Path | None = None
 def plot_hysteresis_loop(actuator, rec, q_sim, *, path: str | Path | None = None):
     """Hysteresis of a slow drive: measured and simulated q/2 against U, with the
     model's free stroke Γ(U) (in stick, q = 2·Γ)."""
-    plt = _pyplot()
     u = np.asarray(rec.voltage_V)
     gamma = stroke_along(actuator, u)
-    fig, ax = plt.subplots(figsize=(5.2, 4.2))
+    fig, ax = subplots(figsize=(5.2, 4.2))
     half_m = np.asarray(rec.position_m) / 2
     half_s = np.asarray(q_sim) / 2
     shift = np.mean(half_s - half_m)  # the interferometer zero is arbitrary
@@ -72,11 +70,10 @@ def mean_step_length(rec, q) -> float:
 def plot_step_lengths(recs, q_sims, *, path: str | Path | None = None):
     """Step length per period against amplitude, forward and backward, measured
     (markers) and simulated (lines), one colour per frequency."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.8), sharey=False)
+    fig, axes = subplots(1, 2, figsize=(9.5, 3.8), sharey=False)
     saw = [(r, q) for r, q in zip(recs, q_sims, strict=True) if r.drive.waveform == "sawtooth"]
     freqs = sorted({r.drive.frequency_Hz for r, _ in saw})
-    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(len(freqs), 1)))
+    colours = colormap("viridis")(np.linspace(0.0, 0.85, max(len(freqs), 1)))
     for ax, backward in zip(axes, (False, True), strict=True):
         for colour, f in zip(colours, freqs, strict=True):
             sel = sorted([(r.drive.amplitude_V, mean_step_length(r, r.position_m),

@@ -57,16 +57,12 @@ class VelocityMap:
     def plot(self, path=None):
         """Heat map of velocity [µm/s] over amplitude and frequency, one panel per
         direction; scanning points hatched. Returns the figure."""
-        import matplotlib
-
-        if path is not None:
-            matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
+        from ..plots import subplots
 
         dirs = sorted(set(self.grid.backward.tolist()))
         amps = np.unique(self.grid.amplitude_V)
         freqs = np.unique(self.grid.frequency_Hz)
-        fig, axes = plt.subplots(1, len(dirs), figsize=(5.2 * len(dirs), 4.2), squeeze=False)
+        fig, axes = subplots(1, len(dirs), figsize=(5.2 * len(dirs), 4.2), squeeze=False)
         v = self.velocity_m_s * 1e6
         vmax = float(np.nanmax(np.abs(v))) or 1.0
         for ax, back in zip(axes[0], dirs, strict=True):
@@ -94,7 +90,6 @@ class VelocityMap:
         fig.tight_layout()
         if path is not None:
             fig.savefig(path, dpi=130)
-            plt.close(fig)
         return fig
 
 

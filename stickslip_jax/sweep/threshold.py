@@ -62,14 +62,10 @@ def plot_ratio_study(amplitudes, study: dict, *, frequency_Hz: float, path=None,
                      extra: dict | None = None):
     """Step per period [nm] against amplitude [V], one line per ratio with its
     threshold marked; ``extra`` adds labelled curves (e.g. LuGre). Returns the figure."""
-    import matplotlib
+    from ..plots import colormap, subplots
 
-    if path is not None:
-        matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    colours = plt.get_cmap("plasma")(np.linspace(0, 0.85, max(len(study), 1)))
+    fig, ax = subplots(figsize=(6, 4))
+    colours = colormap("plasma")(np.linspace(0, 0.85, max(len(study), 1)))
     for colour, (ratio, (steps, thr)) in zip(colours, study.items(), strict=True):
         ax.plot(amplitudes, np.asarray(steps) * 1e9, "-o", ms=3, color=colour,
                 label=f"z_ba/z_ss = {ratio:g}: 0-amplitude {thr:.1f} V")
@@ -86,5 +82,4 @@ def plot_ratio_study(amplitudes, study: dict, *, frequency_Hz: float, path=None,
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=130)
-        plt.close(fig)
     return fig

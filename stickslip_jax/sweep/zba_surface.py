@@ -271,15 +271,11 @@ def surface_supports(fit: SurfaceFit, amplitude, frequency, backward) -> bool:
 def plot_zba_surface(points: ZbaPoints, fit: SurfaceFit, path=None):
     """z_ba against amplitude, one colour per frequency: fitted points (markers with
     ±2 standard errors) and the surface (lines; dashed outside the fitted range)."""
-    import matplotlib
+    from ..plots import colormap, subplots
 
-    if path is not None:
-        matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    fig, axes = subplots(1, 2, figsize=(10, 4), sharey=True)
     freqs = np.unique(points.frequency_Hz)
-    colours = plt.get_cmap("viridis")(np.linspace(0, 0.85, max(freqs.size, 1)))
+    colours = colormap("viridis")(np.linspace(0, 0.85, max(freqs.size, 1)))
     a_all = np.linspace(points.amplitude_V.min(), points.amplitude_V.max(), 60)
     for ax, back in zip(axes, (False, True), strict=True):
         name = "backward" if back else "forward"
@@ -309,7 +305,6 @@ def plot_zba_surface(points: ZbaPoints, fit: SurfaceFit, path=None):
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=130)
-        plt.close(fig)
     return fig
 
 
