@@ -39,6 +39,8 @@ from .model.base import (
     DriveContext,
     ExtensionTerms,
 )
+from .model.ceim import CEIMElastoPlastic
+from .model.contacts import ExtraContacts, multi_contact
 from .model.extensions import (
     ChainedOutput,
     Creep,
@@ -100,6 +102,13 @@ from .sweep import (
     with_zba_surface,
     zero_amplitude_threshold,
 )
+from .sweep.contact_studies import (
+    ForceCurve,
+    StepCurves,
+    force_vs_amplitude,
+    preload_study,
+    spread_study,
+)
 from .synthetic import DriveSpec, paper_protocol, simulate_set
 
 __version__ = "0.1.0"
@@ -129,4 +138,6 @@ __all__ = [
     "fit_zba_points", "fit_zba_surface", "load_zba_surface", "step_vs_amplitude",
     "velocity_map", "with_zba_surface", "zero_amplitude_threshold",
     "DriveSpec", "paper_protocol", "simulate_set",
+    "CEIMElastoPlastic", "ExtraContacts", "multi_contact", "ForceCurve", "StepCurves",
+    "force_vs_amplitude", "preload_study", "spread_study",
 ]

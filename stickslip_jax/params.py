@@ -16,6 +16,7 @@ import numpy as np
 
 from .files import atomic_write_text, check_output_path
 from .model.actuator import Actuator
+from .model.ceim import CEIMElastoPlastic
 from .model.friction import ElastoPlastic, LuGre, StribeckElastoPlastic
 from .model.hysteresis import PrandtlIshlinskii
 from .model.piezo import PiezoElement
@@ -28,7 +29,10 @@ ELASTOPLASTIC_NAMES = (
     "stribeck_ratio", "v_s",
 )
 LUGRE_NAMES = ("sigma0", "sigma1", "sigma2", "F_c", "F_s", "v_s")
-FRICTION_LAWS = ("elastoplastic", "lugre")
+CEIM_REQUIRED = ("zba_slope", "zba_0", "sigma0_slope", "sigma0_0", "mu")
+CEIM_NAMES = CEIM_REQUIRED + ("f_ba", "sigma1")
+FRICTION_LAWS = ("elastoplastic", "lugre", "ceim")
+_LAW_NAMES = {"elastoplastic": ELASTOPLASTIC_NAMES, "lugre": LUGRE_NAMES, "ceim": CEIM_NAMES}
 
 PARAMETER_DOCS = {
     "Mp": "piezo element mass [kg]",
@@ -39,10 +43,10 @@ PARAMETER_DOCS = {
     "pi_thresholds": "Prandtl-Ishlinskii play thresholds, ascending [V]",
     "pi_weights": "Prandtl-Ishlinskii weights [m/V]",
     "Kact2": "preload coefficient [-] (Kact2·N is a constant force [N])",
-    "N": "normal preload [N]",
+    "N": "normal preload [N] (also the CEIM contact's preload)",
     "F_ext": "constant external force on the slider along +x [N]",
     "k_load": "load spring on the slider, from x2 = 0 [N/m]",
-    "friction": "'elastoplastic' (default) or 'lugre'",
+    "friction": "'elastoplastic' (default), 'lugre' or 'ceim' (preload N > 0)",
     "rho0": "contact stiffness [N/m]",
     "rho1": "contact micro-damping [N·s/m]",
     "rho2": "viscous friction [N·s/m]",
@@ -57,6 +61,12 @@ PARAMETER_DOCS = {
     "sigma2": "LuGre viscous friction [N·s/m]",
     "F_c": "LuGre Coulomb level [N]",
     "F_s": "LuGre static level [N]",
+    "zba_slope": "CEIM: d z_ba / d preload = a·E* + b [m/N] (Nguyen eq. 14)",
+    "zba_0": "CEIM: z_ba at zero preload = c·E* + d [m]",
+    "sigma0_slope": "CEIM: d sigma0 / d preload = a_s·E* + b_s [N/m per N] (eq. 19)",
+    "sigma0_0": "CEIM: sigma0 at zero preload = c_s·E* + d_s [N/m]",
+    "mu": "CEIM: friction coefficient, Coulomb level mu·N [-]",
+    "f_ba": "CEIM: z_ba/|z_ss| in (0, 1] [-] (eq. 15)",
 }
 
 
@@ -108,8 +118,7 @@ def _vector(d, name, source):
 
 def allowed_names(friction: str = "elastoplastic") -> tuple[str, ...]:
     """Every parameter name a file with this friction law may hold."""
-    law = ELASTOPLASTIC_NAMES if friction == "elastoplastic" else LUGRE_NAMES
-    return COMMON_REQUIRED + tuple(COMMON_OPTIONAL) + law
+    return COMMON_REQUIRED + tuple(COMMON_OPTIONAL) + _LAW_NAMES[friction]
 
 
 def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None) -> Actuator:
@@ -127,7 +136,8 @@ def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None
             f"unknown parameter name(s) {', '.join(map(repr, unknown))} for friction "
             f"{friction!r}.", source=source,
             fix=f"check the spelling; allowed names are: {', '.join(allowed)}.")
-    law_required = ("rho0",) if friction == "elastoplastic" else LUGRE_NAMES
+    law_required = {"elastoplastic": ("rho0",), "lugre": LUGRE_NAMES,
+                    "ceim": CEIM_REQUIRED + ("N",)}[friction]
     missing = [k for k in COMMON_REQUIRED + law_required if k not in params]
     if friction == "elastoplastic" and "z_ba" not in params and not (
         "z_ba_forward" in params and "z_ba_backward" in params
@@ -164,6 +174,21 @@ def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None
 
 
 def _friction_from_params(params, friction, source):
+    if friction == "ceim":
+        preload = _number(params, "N", source, positive=True)
+        vals = {k: _number(params, k, source, nonnegative=True) for k in CEIM_REQUIRED}
+        f_ba = _number(params, "f_ba", source) if "f_ba" in params else 0.667
+        if not 0.0 < f_ba <= 1.0:
+            raise ParameterError(f"f_ba must lie in (0, 1], got {f_ba:g}.", source=source,
+                                 fix="f_ba = z_ba/|z_ss| (Nguyen eq. 15).")
+        if vals["mu"] <= 0 or vals["zba_slope"] * preload + vals["zba_0"] <= 0 or \
+                vals["sigma0_slope"] * preload + vals["sigma0_0"] <= 0:
+            raise ParameterError("CEIM needs mu > 0 and a positive z_ba and sigma0 at the "
+                                 "preload N.", source=source,
+                                 fix="check zba_slope/zba_0, sigma0_slope/sigma0_0 and N.")
+        sigma1 = _number(params, "sigma1", source, nonnegative=True) if "sigma1" in params \
+            else 0.0
+        return CEIMElastoPlastic(preload, f_ba=f_ba, sigma1=sigma1, **vals)
     if friction == "lugre":
         vals = {k: _number(params, k, source, positive=k in ("sigma0", "F_c", "F_s", "v_s"),
                            nonnegative=True) for k in LUGRE_NAMES}
@@ -213,6 +238,11 @@ def params_from_actuator(actuator: Actuator) -> dict[str, Any]:
     if isinstance(f, LuGre):
         out["friction"] = "lugre"
         out.update({k: float(getattr(f, k)) for k in LUGRE_NAMES})
+        return out
+    if isinstance(f, CEIMElastoPlastic):
+        out["friction"] = "ceim"
+        out["N"] = float(f.preload)
+        out.update({k: float(getattr(f, k)) for k in CEIM_NAMES})
         return out
     out["friction"] = "elastoplastic"
     out.update({

@@ -30,7 +30,7 @@ def test_help_and_version():
 
 
 @pytest.mark.parametrize("command", ["simulate", "params", "identify", "sweep", "zba-surface",
-                                     "drive", "diagnose"])
+                                     "drive", "diagnose", "contacts"])
 def test_every_command_has_help_with_an_example(command):
     res = run(command, "--help")
     assert res.exit_code == 0

@@ -7,7 +7,16 @@ from __future__ import annotations
 
 import typer
 
-from . import diagnose_cmd, drive_cmd, identify_cmd, params_cmd, simulate, sweep_cmd, zba_cmd
+from . import (
+    contacts_cmd,
+    diagnose_cmd,
+    drive_cmd,
+    identify_cmd,
+    params_cmd,
+    simulate,
+    sweep_cmd,
+    zba_cmd,
+)
 
 app = typer.Typer(
     name="stickslip",
@@ -23,6 +32,7 @@ app.command("sweep", epilog=sweep_cmd.EPILOG)(sweep_cmd.sweep_command)
 app.command("drive", epilog=drive_cmd.EPILOG)(drive_cmd.drive_command)
 app.command("zba-surface", epilog=zba_cmd.EPILOG)(zba_cmd.zba_command)
 app.command("diagnose", epilog=diagnose_cmd.EPILOG)(diagnose_cmd.diagnose_command)
+app.command("contacts", epilog=contacts_cmd.EPILOG)(contacts_cmd.contacts_command)
 
 
 def _version(value: bool) -> None:

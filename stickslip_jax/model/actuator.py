@@ -130,8 +130,18 @@ class Actuator(eqx.Module):
         return jnp.stack(scalars)
 
     def project(self, y, drive: DriveContext):
-        """Saturate the friction state after a sub-step (|z| ≤ |z_ss|)."""
-        return y.at[4].set(self.friction.project(y[4], y[1] - y[3], drive))
+        """Saturate the friction state after a sub-step (|z| ≤ |z_ss|), and let each
+        extension project its own states (extra contacts saturate theirs)."""
+        xdot = y[1] - y[3]
+        y = y.at[4].set(self.friction.project(y[4], xdot, drive))
+        if self.extensions:
+            start = N_CORE + self.input_stage.n_states
+            for e in self.extensions:
+                if e.n_states and type(e).project is not AbstractExtension.project:
+                    part = e.project(y[start : start + e.n_states], xdot, drive)
+                    y = y.at[start : start + e.n_states].set(part)
+                start += e.n_states
+        return y
 
     def commit_memory(self, y, memory, u_command):
         """Hysteresis memory once the piezo voltage has reached its end-of-step value."""

@@ -207,6 +207,12 @@ class AbstractExtension(eqx.Module):
     def terms(self, state, core: CoreState, drive: DriveContext) -> ExtensionTerms:
         """Additive contributions to the core equations."""
 
+    def project(self, state, xdot, drive: DriveContext):
+        """Map the states back into their admissible set after a sub-step (default:
+        unchanged; extra friction contacts saturate their strains here). ``xdot`` is
+        the relative velocity v1 − v2 [m/s]."""
+        return state
+
 
 class AbstractOutputMap(eqx.Module):
     """What the sensor makes of the model output q = x1 + x2 (+ extension output).
