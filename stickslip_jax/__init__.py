@@ -61,6 +61,7 @@ from .model.friction import (
     StribeckElastoPlastic,
     transition_alpha,
 )
+from .model.hemisphere import TiltingHemisphere, with_hemisphere
 from .model.hysteresis import PrandtlIshlinskii, default_thresholds
 from .model.piezo import PiezoElement
 from .model.profiles import LU2015_TABLE, PROFILES, lu2015_slc1720
@@ -139,5 +140,6 @@ __all__ = [
     "velocity_map", "with_zba_surface", "zero_amplitude_threshold",
     "DriveSpec", "paper_protocol", "simulate_set",
     "CEIMElastoPlastic", "ExtraContacts", "multi_contact", "ForceCurve", "StepCurves",
-    "force_vs_amplitude", "preload_study", "spread_study",
+    "force_vs_amplitude", "preload_study", "spread_study", "TiltingHemisphere",
+    "with_hemisphere",
 ]
