@@ -3,7 +3,7 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup demo test lint clean
+.PHONY: setup demo test lint clean notebooks
 
 setup: $(VENV)/.installed
 
@@ -16,6 +16,10 @@ $(VENV)/.installed: pyproject.toml
 # The main job on the bundled fixtures.
 demo: setup
 	MPLBACKEND=Agg bash scripts/demo.sh $(BIN)
+
+# Execute every notebook at full size; executed copies in out/notebooks/.
+notebooks: setup
+	$(BIN)/python scripts/run_notebooks.py --force
 
 lint: setup
 	$(BIN)/ruff check .
