@@ -133,6 +133,8 @@ def contacts_command(
     typer.echo("by contact spread: " + ", ".join(
         f"{s}: {t:.1f} V" for s, t in zip(spr.settings, spr.thresholds_V, strict=True)))
     for label, c in curves.items():
-        typer.echo(f"force generation, {label}: max {1e3 * np.max(c.force_N):.1f} mN, "
-                   f"dead zone below {c.dead_zone_V():.1f} V")
+        dz = c.dead_zone_V()
+        zone = (f"dead zone below {dz:.1f} V" if dz > c.amplitudes_V.min() else
+                f"no dead zone down to {c.amplitudes_V.min():g} V")
+        typer.echo(f"force generation, {label}: max {1e3 * np.max(c.force_N):.1f} mN, {zone}")
     typer.echo(f"wrote {', '.join(str(p) for p in paths.values())}")
