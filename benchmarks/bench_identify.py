@@ -14,7 +14,7 @@ step against scipy.optimize.least_squares over the same JAX residuals.
    final cost x (1 + 1e-6), so both are compared at the same final cost. Compilation
    of the residual function is done before either timer starts.
 Target (issue #3): end to end under 60 s; (a) at least 3x faster than (b).
-Not measured here: (b') scipy over a numba simulator (issue #3 asks for it).
+(b') scipy over the numba simulator: bench_identify_numba.py.
 """
 
 import argparse
