@@ -60,6 +60,8 @@ def test_names_the_hidden_effect_first(base, effect):
     assert d.mismatch, "the baseline mismatch was not located"
     assert excess_removed(d, recs) >= 0.5
     assert d.accepted[0].criterion_delta < -10
+    if effect == "structural_mode":  # the mode (3.3 kHz) shows as a shared residual peak
+        assert any(abs(p - 3300.0) < 500.0 for p in d.peaks_Hz), d.peaks_Hz
 
 
 def test_null_set_adds_nothing(base):
@@ -107,6 +109,7 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
     assert m["nrmse_after"] < 0.5 * m["nrmse_before"]
     assert 10e-6 < m["params"]["sensor_delay"] < 20e-6  # the hidden delay is 15 µs
     assert {"recording", "regime", "time_s", "band_Hz", "statistic"} <= set(d["mismatch"][0])
+    assert isinstance(d["residual_peaks_Hz"], list)
     assert len(d["baseline"]["per_recording"]) == len(recs)
     report = (out / "report.md").read_text()
     assert "sensor_delay" in report and (out / "figures" / "residual_map.png").exists()

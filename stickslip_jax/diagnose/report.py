@@ -56,6 +56,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                      "chi2_per_sample": d.chi2_baseline,
                      "per_recording": _per_recording(d.nrmse_baseline, d.analyses_baseline)},
         "mismatch": d.mismatch,
+        "residual_peaks_Hz": d.peaks_Hz,
         "missing_physics": missing,
         "final": {"nrmse": float(d.nrmse_final.mean()), "chi2_per_sample": d.chi2_final,
                   "terms": d.terms,
@@ -150,7 +151,12 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
         lines += ["Cannot be tested with these recordings:", ""]
         lines += [f"- `{k}`: {v}" for k, v in content["indistinguishable_here"].items()]
         lines.append("")
-    lines += ["## Where the baseline misses", "",
+    lines += ["## Where the baseline misses", ""]
+    if content["residual_peaks_Hz"]:
+        lines += ["Peaks of the residual spectrum shared by several recordings "
+                  "(unmodelled resonances?): "
+                  + ", ".join(f"{p:.0f} Hz" for p in content["residual_peaks_Hz"]) + ".", ""]
+    lines += [
               "| recording | regime | (e/σ)² | Ljung-Box p | dominant phase | band [Hz] |",
               "|---|---|---|---|---|---|"]
     for m in content["mismatch"]:

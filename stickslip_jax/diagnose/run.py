@@ -133,6 +133,9 @@ class Diagnosis:
     terms: list[str]
     timings: dict[str, float]
     notes: list[str] = field(default_factory=list)
+    peaks_Hz: list[float] = field(default_factory=list)
+    """Peaks of the baseline's residual spectrum shared by several recordings [Hz]:
+    candidates for an unmodelled resonance (:func:`~.locate.residual_peaks`)."""
 
 
 def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
@@ -476,4 +479,5 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     timings["total_s"] = time.perf_counter() - t_all
     return Diagnosis(data, sigmas, baseline, act, nrmse0, nrmse_f, chi2_0, rss_final / n_obs,
                      analyses0, analyses_f, mismatch, accepted, rounds, not_testable,
-                     unexplained, verdict, q0, qf, _terms(act), timings, notes)
+                     unexplained, verdict, q0, qf, _terms(act), timings, notes,
+                     [float(p) for p in hints["peaks_Hz"]])
