@@ -33,54 +33,32 @@
 import os
 import time
 
-import equinox as eqx
 import jax
 
 jax.config.update("jax_enable_x64", True)
-import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 
 import stickslip_jax as ss
-from stickslip_jax.model.friction import AbstractElastoPlastic
 from stickslip_jax.sweep.zba_surface import plot_zba_surface
+from stickslip_jax.synthetic import example_zba, with_drive_dependent_zba
 
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 
 # %% [markdown]
 # ## An actuator whose z_ba depends on the drive
 #
-# A friction law is one small class: this one takes the elasto-plastic law and
-# makes z_ba a function of the drive's amplitude, frequency and direction (the
-# `DriveContext` every recording carries). Not a quadratic: the surface we fit
-# later is one, so the fit is honest about its form error.
+# A friction law is one small class: `ss.synthetic.DriveDependentZba` takes the
+# elasto-plastic law and makes z_ba a function of the drive's amplitude, frequency
+# and direction (the `DriveContext` every recording carries). The function used here,
+# `example_zba`, is a tanh in amplitude and a square root in frequency, not a
+# quadratic: the surface we fit later is one, so the fit is honest about its form
+# error.
 
 # %%
-def true_zba(a, f, backward):
-    base = jnp.where(backward > 0, 0.46e-6, 0.40e-6)
-    return base * (1 + 0.12 * jnp.tanh((a - 55) / 20)) * (1 - 0.06 * jnp.sqrt(f / 1000))
-
-
-class DriveDependentZba(AbstractElastoPlastic):
-    rho0: jax.Array
-    rho1: jax.Array
-    rho2: jax.Array
-    z_ba_forward: jax.Array
-    z_ba_backward: jax.Array
-    zba_ratio: jax.Array
-
-    def z_ba(self, drive):
-        return true_zba(drive.amplitude, drive.frequency, drive.backward)
-
-    def zss_magnitude(self, xdot, drive):
-        return self.z_ba(drive) / self.zba_ratio
-
-
+true_zba = example_zba
 base = ss.lu2015_slc1720()
-f0 = base.friction
-truth = eqx.tree_at(lambda a: a.friction, base,
-                    DriveDependentZba(f0.rho0, f0.rho1, f0.rho2, f0.z_ba_forward,
-                                      f0.z_ba_backward, f0.zba_ratio))
+truth = with_drive_dependent_zba(base, true_zba)
 
 amps = (40.0, 60.0, 80.0) if QUICK else (40.0, 50.0, 60.0, 70.0, 80.0)
 freqs = (100.0, 300.0, 700.0) if QUICK else (50.0, 100.0, 200.0, 400.0, 700.0)

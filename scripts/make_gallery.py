@@ -17,14 +17,12 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import equinox as eqx  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
-from stickslip_jax.model.friction import AbstractElastoPlastic  # noqa: E402
 from stickslip_jax.plots import save_figure, subplots  # noqa: E402
 from stickslip_jax.sweep.zba_surface import plot_zba_surface  # noqa: E402
+from stickslip_jax.synthetic import with_drive_dependent_zba  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -76,33 +74,9 @@ def velocity_map(path: Path) -> None:
     save_figure(vm.plot(), path)
 
 
-def true_zba(a, f, backward):
-    base = jnp.where(backward > 0, 0.46e-6, 0.40e-6)
-    return base * (1 + 0.12 * jnp.tanh((a - 55) / 20)) * (1 - 0.06 * jnp.sqrt(f / 1000))
-
-
-class DriveDependentZba(AbstractElastoPlastic):
-    """Elasto-plastic friction whose z_ba depends on the drive (a made-up truth)."""
-
-    rho0: jax.Array
-    rho1: jax.Array
-    rho2: jax.Array
-    z_ba_forward: jax.Array
-    z_ba_backward: jax.Array
-    zba_ratio: jax.Array
-
-    def z_ba(self, drive):
-        return true_zba(drive.amplitude, drive.frequency, drive.backward)
-
-    def zss_magnitude(self, xdot, drive):
-        return self.z_ba(drive) / self.zba_ratio
-
-
 def zba_surface(path: Path) -> None:
     base = ss.lu2015_slc1720()
-    f = base.friction
-    truth = eqx.tree_at(lambda a: a.friction, base, DriveDependentZba(
-        f.rho0, f.rho1, f.rho2, f.z_ba_forward, f.z_ba_backward, f.zba_ratio))
+    truth = with_drive_dependent_zba(base)  # z_ba: example_zba (tanh x sqrt)
     specs = [ss.DriveSpec("sawtooth", a, fr, d, 4 / fr) for d in ("forward", "backward")
              for a in (40.0, 50.0, 60.0, 70.0, 80.0) for fr in (50.0, 150.0, 400.0, 1000.0)]
     recs = ss.simulate_set(truth, specs, noise_m=1e-9, seed=11)

@@ -99,12 +99,35 @@ def sample_stepper(actuator: Actuator, dt, drive, substeps: int, solver: Explici
     return sample_step
 
 
-def _model_output(actuator: Actuator, voltage, dt, drive, substeps: int, solver: ExplicitRK):
-    """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T)."""
+def _scan(actuator: Actuator, voltage, dt, drive, substeps: int, solver: ExplicitRK, *,
+          keep_states: bool = False):
+    """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T), and
+    with ``keep_states`` also the integrated state at every sample, (T, n_states)."""
     carry, q0 = rest_carry(actuator, voltage[0], drive)
     step = sample_stepper(actuator, dt, drive, substeps, solver)
-    _, qs = jax.lax.scan(step, carry, (voltage[:-1], voltage[1:]))
-    return jnp.concatenate([q0[None], qs])
+
+    def body(c, u_pair):
+        c, q = step(c, u_pair)
+        return c, ((c[0], q) if keep_states else q)
+
+    _, out = jax.lax.scan(body, carry, (voltage[:-1], voltage[1:]))
+    if not keep_states:
+        return jnp.concatenate([q0[None], out])
+    ys, qs = out
+    return jnp.concatenate([carry[0][None], ys]), jnp.concatenate([q0[None], qs])
+
+
+def _model_output(actuator: Actuator, voltage, dt, drive, substeps: int, solver: ExplicitRK):
+    """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T)."""
+    return _scan(actuator, voltage, dt, drive, substeps, solver)
+
+
+def _checked(voltage, drive) -> tuple[jax.Array, DriveContext]:
+    """The voltage as a float64 1-D array of ≥ 2 samples, and the drive (default forward)."""
+    voltage = jnp.asarray(voltage, dtype=float)
+    if voltage.ndim != 1 or voltage.shape[0] < 2:
+        raise ValueError(f"voltage must be a 1-D array of at least 2 samples, got {voltage.shape}")
+    return voltage, DriveContext.make() if drive is None else drive
 
 
 @partial(eqx.filter_jit)
@@ -129,11 +152,7 @@ def simulate(
     linear (first-order hold). ``q[0]`` is the rest output. ``drive`` selects
     direction-dependent parameters (default: forward).
     """
-    voltage = jnp.asarray(voltage, dtype=float)
-    if voltage.ndim != 1 or voltage.shape[0] < 2:
-        raise ValueError(f"voltage must be a 1-D array of at least 2 samples, got {voltage.shape}")
-    if drive is None:
-        drive = DriveContext.make()
+    voltage, drive = _checked(voltage, drive)
     return _simulate(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver)
 
 
@@ -161,16 +180,7 @@ class Trajectory(eqx.Module):
 
 @partial(eqx.filter_jit)
 def _trajectory(actuator, voltage, dt, drive, substeps, solver):
-    carry, q0 = rest_carry(actuator, voltage[0], drive)
-    step = sample_stepper(actuator, dt, drive, substeps, solver)
-
-    def step_keep(c, u_pair):
-        c, q = step(c, u_pair)
-        return c, (c[0], q)
-
-    _, (ys, qs) = jax.lax.scan(step_keep, carry, (voltage[:-1], voltage[1:]))
-    ys = jnp.concatenate([carry[0][None], ys])
-    q = jnp.concatenate([q0[None], qs])
+    ys, q = _scan(actuator, voltage, dt, drive, substeps, solver, keep_states=True)
     t = dt * jnp.arange(voltage.shape[0])
     xdot = ys[:, 1] - ys[:, 3]
     z = ys[:, 4]
@@ -194,11 +204,7 @@ def simulate_states(
     For looking inside the model (the friction state z and force Ff through a
     sawtooth period, the slider and piezo separately); ``simulate`` is leaner.
     """
-    voltage = jnp.asarray(voltage, dtype=float)
-    if voltage.ndim != 1 or voltage.shape[0] < 2:
-        raise ValueError(f"voltage must be a 1-D array of at least 2 samples, got {voltage.shape}")
-    if drive is None:
-        drive = DriveContext.make()
+    voltage, drive = _checked(voltage, drive)
     return _trajectory(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver)
 
 

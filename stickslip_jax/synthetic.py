@@ -8,12 +8,17 @@ stepping 40 and 60 V sawtooth at 50/100/500 Hz, forward and backward (17 recordi
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
+import equinox as eqx
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import signals
 from .io import Recording
+from .model.friction import AbstractElastoPlastic
 
 
 @dataclass(frozen=True)
@@ -94,3 +99,39 @@ def simulate_set(actuator, specs, *, noise_m: float = 1e-9, seed: int = 0,
         noisy = q + noise_m * rng.standard_normal(q.shape)
         out.append(rec.with_position_m(noisy, unit=unit))
     return out
+
+
+# ------------------------------------------------------------- drive-dependent z_ba
+def example_zba(amplitude, frequency, backward):
+    """A made-up z_ba(A, f, direction) [m] that is *not* the quadratic the z_ba surface
+    fits: a tanh in amplitude [V] and a square root in frequency [Hz], 0.40 µm forward
+    and 0.46 µm backward (``backward`` 1.0) at its centre."""
+    base = jnp.where(backward > 0, 0.46e-6, 0.40e-6)
+    return base * (1 + 0.12 * jnp.tanh((amplitude - 55) / 20)) * (
+        1 - 0.06 * jnp.sqrt(frequency / 1000))
+
+
+class DriveDependentZba(AbstractElastoPlastic):
+    """Elasto-plastic friction whose z_ba is a given function ``law(A, f, backward)``
+    of the drive (a known truth for testing the z_ba surface); |z_ss| = z_ba/ratio."""
+
+    rho0: jax.Array
+    rho1: jax.Array
+    rho2: jax.Array
+    z_ba_forward: jax.Array
+    z_ba_backward: jax.Array
+    zba_ratio: jax.Array
+    law: Callable = eqx.field(static=True, default=example_zba)
+
+    def z_ba(self, drive):
+        return self.law(drive.amplitude, drive.frequency, drive.backward)
+
+    def zss_magnitude(self, xdot, drive):
+        return self.z_ba(drive) / self.zba_ratio
+
+
+def with_drive_dependent_zba(actuator, law: Callable = example_zba):
+    """The actuator with its elasto-plastic contact's z_ba replaced by ``law`` [m]."""
+    f = actuator.friction
+    return eqx.tree_at(lambda a: a.friction, actuator, DriveDependentZba(
+        f.rho0, f.rho1, f.rho2, f.z_ba_forward, f.z_ba_backward, f.zba_ratio, law))

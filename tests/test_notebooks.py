@@ -6,9 +6,7 @@ with ``STICKSLIP_NOTEBOOK_QUICK=1``; a failing cell fails the test. Run times ar
 printed (``pytest -s``) and collected in ``notebooks/README.md`` by hand.
 """
 
-import json
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -26,16 +24,21 @@ def test_there_are_six_notebooks():
     assert len(SOURCES) == 6, [p.name for p in SOURCES]
 
 
+def _runner():
+    """scripts/run_notebooks.py, which also executes the notebooks outside the tests."""
+    import importlib.util
+
+    path = NOTEBOOKS.parent / "scripts" / "run_notebooks.py"
+    spec = importlib.util.spec_from_file_location("run_notebooks", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 @pytest.fixture(scope="module")
-def kernel_dir(tmp_path_factory):
+def kernel_dir():
     """A kernelspec for this very interpreter (not whatever `python3` a machine has)."""
-    root = tmp_path_factory.mktemp("jupyter")
-    spec = root / "kernels" / "stickslip-test"
-    spec.mkdir(parents=True)
-    (spec / "kernel.json").write_text(json.dumps({
-        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-        "display_name": "stickslip test", "language": "python"}))
-    return root
+    return _runner().kernel_spec_dir()
 
 
 @pytest.mark.slow
@@ -46,7 +49,7 @@ def test_notebook_runs(source, kernel_dir, monkeypatch):
     monkeypatch.setenv("JUPYTER_PATH", str(kernel_dir) + os.pathsep + os.environ.get(
         "JUPYTER_PATH", ""))
     nb = jupytext.read(source)
-    client = nbclient.NotebookClient(nb, timeout=900, kernel_name="stickslip-test",
+    client = nbclient.NotebookClient(nb, timeout=900, kernel_name="stickslip",
                                      resources={"metadata": {"path": str(NOTEBOOKS)}})
     t0 = time.perf_counter()
     client.execute()

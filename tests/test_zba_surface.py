@@ -2,7 +2,6 @@
 amplitude x frequency x direction recovered from a grid made with a *different*
 functional form, and its use by simulate/sweep."""
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +10,6 @@ from typer.testing import CliRunner
 
 import stickslip_jax as ss
 from stickslip_jax.cli.main import app
-from stickslip_jax.model.friction import AbstractElastoPlastic
 from stickslip_jax.sweep import (
     DriveGrid,
     fit_zba_points,
@@ -20,7 +18,12 @@ from stickslip_jax.sweep import (
     velocity_map,
     with_zba_surface,
 )
-from stickslip_jax.synthetic import DriveSpec, simulate_set
+from stickslip_jax.synthetic import (
+    DriveSpec,
+    example_zba,
+    simulate_set,
+    with_drive_dependent_zba,
+)
 
 # One worker computes the module's expensive fixture once (pytest -n 2 --dist loadgroup).
 pytestmark = pytest.mark.xdist_group("zba_surface_grid")
@@ -28,33 +31,12 @@ pytestmark = pytest.mark.xdist_group("zba_surface_grid")
 AMPS, FREQS = (40.0, 55.0, 70.0), (100.0, 300.0, 600.0)
 
 
-def true_zba(a, f, backward):
-    """Not a quadratic: tanh in amplitude, square root in frequency."""
-    base = jnp.where(backward > 0, 0.46e-6, 0.40e-6)
-    return base * (1 + 0.12 * jnp.tanh((a - 55) / 20)) * (1 - 0.06 * jnp.sqrt(f / 1000))
-
-
-class TrueSurface(AbstractElastoPlastic):
-    rho0: jax.Array
-    rho1: jax.Array
-    rho2: jax.Array
-    z_ba_forward: jax.Array
-    z_ba_backward: jax.Array
-    zba_ratio: jax.Array
-
-    def z_ba(self, drive):
-        return true_zba(drive.amplitude, drive.frequency, drive.backward)
-
-    def zss_magnitude(self, xdot, drive):
-        return self.z_ba(drive) / self.zba_ratio
+# Not a quadratic: tanh in amplitude, square root in frequency.
+true_zba = example_zba
 
 
 def truth_actuator():
-    base = ss.lu2015_slc1720()
-    f = base.friction
-    return eqx.tree_at(lambda a: a.friction, base,
-                       TrueSurface(f.rho0, f.rho1, f.rho2, f.z_ba_forward, f.z_ba_backward,
-                                   f.zba_ratio))
+    return with_drive_dependent_zba(ss.lu2015_slc1720(), true_zba)
 
 
 @pytest.fixture(scope="module")

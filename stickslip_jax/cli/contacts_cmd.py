@@ -86,8 +86,8 @@ def contacts_command(
             raise fail("preloads must be positive")
         spreads = _spreads(spread)
         out.mkdir(parents=True, exist_ok=True)
-        paths = {n: out / f"{n}" for n in ("contacts.json", "preload.png", "spread.png",
-                                            "force.png")}
+        paths = {n: out / n for n in ("contacts.json", "preload.png", "spread.png",
+                                       "force.png")}
         for p in paths.values():
             check_output_path(p, force=force)
         act = load_actuator(params)
