@@ -43,10 +43,12 @@ from .model.ceim import CEIMElastoPlastic
 from .model.contacts import ExtraContacts, multi_contact
 from .model.extensions import (
     ChainedOutput,
+    ClippedSlewInput,
     Creep,
     ExponentialDrift,
     LearnedForce,
     LowPassInput,
+    ParallelInputs,
     PositionRipple,
     RateDependentStroke,
     SecondOrderInput,
@@ -134,7 +136,7 @@ __all__ = [
     "CATALOGUE", "Diagnosis", "diagnose",
     "ChainedOutput", "Creep", "ExponentialDrift", "LearnedForce", "LowPassInput",
     "PositionRipple", "RateDependentStroke", "SecondOrderInput", "SensorOutput",
-    "SlewLimitedInput", "StructuralMode",
+    "SlewLimitedInput", "ClippedSlewInput", "ParallelInputs", "StructuralMode",
     "DriveChoice", "DriveGrid", "VelocityMap", "ZbaPoints", "ZbaSurface", "drive_for_velocity",
     "fit_zba_points", "fit_zba_surface", "load_zba_surface", "step_vs_amplitude",
     "velocity_map", "with_zba_surface", "zero_amplitude_threshold",

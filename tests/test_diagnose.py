@@ -23,7 +23,8 @@ from stickslip_jax.synthetic import paper_protocol, simulate_set
 ROOT = Path(__file__).resolve().parent.parent
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
 
-NAMED = ["sensor_delay", "structural_mode", "creep", "external_load", "contact_damping"]
+NAMED = ["sensor_delay", "structural_mode", "creep", "external_load", "contact_damping",
+         "rate_dependent_hysteresis", "drive_bandwidth"]
 """Effects the reduced protocol shows clearly enough for the test to demand the name."""
 
 

@@ -41,8 +41,10 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
     """All probes installed at once (the score test's actuator) leave q unchanged."""
     rec, u = saw
     base = ss.lu2015_slc1720()
-    probe_act, entries = _install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0]})
-    assert len(entries) >= 12
+    probe_act, entries = _install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0],
+                                                           "max_slew_V_s": 1.5e6})
+    assert len(entries) >= 16
+    assert sum("drive" in p.label for _, p, _, _ in entries) == 2  # both drive forms
     assert probe_act.n_states > base.n_states
     q0 = ss.simulate(base, u, dt=rec.dt)
     q1 = ss.simulate(probe_act, u, dt=rec.dt)
@@ -111,3 +113,35 @@ def test_low_pass_input_follows_a_step_exponentially(saw):
     assert not act.stroke_follows_command
     dq = np.asarray(ss.simulate(act, u, dt=rec.dt) - ss.simulate(base, u, dt=rec.dt))
     assert 1e-8 < np.max(np.abs(dq)) < 1e-6
+
+
+def test_slew_limited_stages_and_parallel_inputs(saw):
+    """The hard-limited amplifier (the concealed set's drive) follows a slow change with
+    lag τ and a fast one at exactly S; the tanh form is close to it; stages side by
+    side at mix 0 are the pass-through, and at mix 1 each adds its own departure."""
+    slew, tau = 1.2e6, 8e-6
+    hard, soft = ss.ClippedSlewInput(slew, tau), ss.SlewLimitedInput(slew, tau)
+    s = hard.initial_state(0.0)
+    # A 60 V jump: the hard stage moves at S until the gap is S·τ = 9.6 V.
+    np.testing.assert_allclose(float(hard.rate(s, 60.0)[0]), slew, rtol=1e-12)
+    np.testing.assert_allclose(float(hard.rate(s, 1.0)[0]), 1.0 / tau, rtol=1e-12)
+    assert 0.99 * slew < float(soft.rate(s, 60.0)[0]) < slew
+    # Small signals: the same first-order response (tanh x ≈ x).
+    np.testing.assert_allclose(float(soft.rate(s, 0.1)[0]), 0.1 / tau, rtol=1e-4)
+    assert float(hard.voltage(jnp.asarray([3.0]), 10.0)) == 3.0
+    assert float(ss.SlewLimitedInput(slew, tau, 0.25).voltage(jnp.asarray([2.0]), 10.0)) == 8.0
+    par = ss.ParallelInputs((LowPassInput(20e-6, 0.0), ss.SlewLimitedInput(slew, tau, 0.0)))
+    assert par.n_states == 2
+    state = par.initial_state(5.0)
+    np.testing.assert_allclose(np.asarray(state), [5.0, 5.0])
+    assert float(par.voltage(jnp.asarray([1.0, 2.0]), 7.0)) == 7.0
+    on = ss.ParallelInputs((LowPassInput(20e-6, 1.0), ss.SlewLimitedInput(slew, tau, 1.0)))
+    assert float(on.voltage(jnp.asarray([1.0, 2.0]), 7.0)) == 7.0 + (1.0 - 7.0) + (2.0 - 7.0)
+    np.testing.assert_allclose(np.asarray(on.rate(jnp.asarray([1.0, 7.0]), 7.0)),
+                               [6.0 / 20e-6, 0.0], rtol=1e-12)
+    # In the simulator: the hard-limited drive slows the 500 Hz edges measurably.
+    rec, u = saw
+    base = ss.lu2015_slc1720()
+    act = eqx.tree_at(lambda a: a.input_stage, base, hard)
+    dq = np.asarray(ss.simulate(act, u, dt=rec.dt) - ss.simulate(base, u, dt=rec.dt))
+    assert 1e-9 < np.max(np.abs(dq)) < 1e-5

@@ -9,8 +9,8 @@ effect                      generator form (catalogue form, when different)
 ==========================  ==========================================================
 creep                       four first-order modes, 0.5 to 150 ms, equal gains: a
                             log-in-time law (catalogue: one first-order mode)
-drive_bandwidth             amplifier slew-limited at 1.2 V/µs, 8 µs small-signal lag
-                            (catalogue: a two-pole low-pass)
+drive_bandwidth             amplifier hard-limited at 1.2 V/µs, 8 µs small-signal lag
+                            (catalogue: a low-pass, or a tanh-smoothed slew limit)
 structural_mode             mount resonance at 3.3 kHz excited by the contact force
 sensor_delay                15 µs interferometer delay
 sensor_drift                thermal drift settling exponentially (catalogue: linear)
@@ -34,12 +34,12 @@ import numpy as np
 
 from ..model.actuator import Actuator
 from ..model.extensions import (
+    ClippedSlewInput,
     Creep,
     ExponentialDrift,
     PositionRipple,
     RateDependentStroke,
     SensorOutput,
-    SlewLimitedInput,
     StructuralMode,
 )
 from ..model.friction import StribeckElastoPlastic
@@ -74,7 +74,7 @@ def with_effect(act: Actuator, effect: str) -> Actuator:
             act = act.with_extension(Creep(0.02 * w, tau))
         return act
     if effect == "drive_bandwidth":
-        return eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(1.2e6, 8e-6))
+        return eqx.tree_at(lambda a: a.input_stage, act, ClippedSlewInput(1.2e6, 8e-6))
     if effect == "structural_mode":
         return act.with_extension(StructuralMode(3300.0, 0.03, 1.2e-7))
     if effect == "sensor_delay":

@@ -14,9 +14,14 @@
    squares that the entry would buy to first order, χ²(1) when the entry is absent.
    Strengths of the wrong sign (negative damping, negative delay) score 0.
 4. Size the entries with the largest ``|S|`` (at most :data:`SIZE_AT_MOST`, ``|S|``
-   above :data:`SCORE_MIN`; either sign, as a large effect can turn the first-order
-   sign around) with the baseline held, then refit the ``top`` by the larger of ``S``
-   and the sizing's drop from the current optimum,
+   above :data:`SCORE_MIN`; admissible signs first, then the others, as a large effect
+   can turn the first-order sign around): each starts from the Gauss-Newton step of
+   the score test, the entry at its strength and the baseline moved by its share of
+   the step (the best of 1, 1/2, 1/4, 1/8 of it), and its own parameters are fitted
+   with the baseline held. Then refit the ``top`` by the larger of ``S`` and the
+   sizing's drop (and, if none of them explains the residual, the other sized entries
+   too: the first-order ranking misleads when the baseline absorbed a large effect)
+   from the current optimum,
    freeing the entry's parameters and every baseline parameter, and compare with the
    Bayesian information criterion of the whitened residual (known noise level):
    ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N samples). The best entry is
@@ -203,7 +208,8 @@ def _install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict)
 def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
                      candidates: Sequence[Candidate], hints: dict):
     """Score test of every probe (see the module docstring). Returns a dict
-    ``name → (score, strength, probe)`` with each candidate's best probe."""
+    ``name → (score, strength, probe, shift)`` with each candidate's best probe: the
+    Gauss-Newton strength and the baseline θ shift that goes with it."""
     probe_act, entries = _install_probes(act, candidates, hints)
     names = base_names + [e[2] for e in entries]
     specs = {e[2]: e[3] for e in entries}
@@ -215,8 +221,9 @@ def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
     n_base = jac.shape[1] - len(entries)
     jb = jac[:, :n_base]
     norms = np.linalg.norm(jb, axis=0)
-    q, _ = np.linalg.qr(jb / np.where(norms > 0, norms, 1.0))
-    out: dict[str, tuple[float, float, Probe]] = {}
+    jb_n = jb / np.where(norms > 0, norms, 1.0)
+    q, _ = np.linalg.qr(jb_n)
+    out: dict[str, tuple[float, float, Probe, np.ndarray]] = {}
     for k, (cand, probe, _, spec) in enumerate(entries):
         c = jac[:, n_base + k]
         c_perp = c - q @ (q.T @ c)
@@ -231,12 +238,42 @@ def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
                 # after every admissible one (a large effect can still turn the sign
                 # around; see diagnose's ``top``).
                 score, beta = -score, -beta
-        # Start refits at a quarter of the Gauss-Newton strength: for large effects the
-        # linearised step overshoots (seen: start costs 20x the baseline's).
-        strength = 0.25 * beta * spec.scale
+        # The baseline's share of the Gauss-Newton step that goes with the strength
+        # β: an effect the baseline partly mimics (a rate lag is a creep plus a PI
+        # slope change) only pays once the baseline gives back what it absorbed.
+        shift = -np.linalg.lstsq(jb_n, r + c * beta, rcond=1e-10)[0] / np.where(
+            norms > 0, norms, 1.0)
         if cand.name not in out or score > out[cand.name][0]:
-            out[cand.name] = (score, strength, probe)
+            out[cand.name] = (score, beta * spec.scale, probe, shift)
     return out
+
+
+def _first_order_start(problem: _Problem, act: Actuator, base_names: list[str],
+                       cand: Candidate, strength: float, probe: Probe, shift: np.ndarray):
+    """The entry attached at a fraction of its Gauss-Newton strength, with the baseline
+    moved by the same fraction of its share of the step: the fraction (1, 1/2, 1/4, 1/8)
+    whose start costs least (the linearised step overshoots for large effects)."""
+    pmap = ParameterMap.make(act, base_names)
+    best = None
+    for frac in (1.0, 0.5, 0.25, 0.125):
+        moved = pmap.actuator(jnp.asarray(frac * shift))
+        try:
+            start, specs = cand.attach(moved, frac * strength, probe)
+            cost = problem.evaluate(start)[0]
+        except ValueError:  # the moved PI loop is not monotone
+            continue
+        if np.isfinite(cost) and (best is None or cost < best[0]):
+            best = (cost, start, specs)
+    if best is None:
+        start, specs = cand.attach(act, 0.25 * strength, probe)
+        return start, specs
+    return best[1], best[2]
+
+
+def _explains(r: CandidateResult) -> bool:
+    """The refit removes :data:`EXPLAINED_MIN` of the excess or reaches the noise."""
+    return (bool(np.isfinite(r.explained) and r.explained >= EXPLAINED_MIN)
+            or r.chi2_after <= ADEQUATE_CHI2)
 
 
 def _learned_scales(problem: _Problem) -> tuple[float, ...]:
@@ -341,7 +378,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     chi2_0 = rss / n_obs
     analyses0 = [analyse_recording(r, q0[i], sigmas[i]) for i, r in enumerate(data.recordings)]
     mismatch = mismatch_entries(analyses0)
-    hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas)}
+    hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas),
+             "max_slew_V_s": max(float(np.max(np.abs(np.diff(r.voltage_V)))) / r.dt
+                                 for r in data.recordings)}
     say(f"[baseline] NRMSE {100 * nrmse0.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
         f"{len(mismatch)} recording(s) flagged; residual peaks {hints['peaks_Hz']}")
 
@@ -362,26 +401,28 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         t0 = time.perf_counter()
         scores = score_candidates(problem, act, base_names, pool, hints)
         timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
-        results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe) in
+        results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe, _) in
                    sorted(scores.items(), key=lambda kv: -kv[1][0])]
         say("[score] " + ", ".join(f"{r.name} {r.score:.3g}" for r in results))
         # Size every entry the score test finds (either sign: a large effect can turn
         # the first-order sign around) with the baseline held: its own 1-3 parameters,
         # cheap. Rank by the larger of the score and the drop the sizing achieved.
         sized = {}
-        for res in sorted(results, key=lambda r: -abs(r.score))[:size_at_most]:
+        # Admissible signs first, then by |score|.
+        for res in sorted(results, key=lambda r: (r.score < 0, -abs(r.score)))[:size_at_most]:
             if abs(res.score) < SCORE_MIN:
                 continue
             cand = next(c for c in pool if c.name == res.name)
-            probe = scores[res.name][2]
-            start, specs = cand.attach(act, res.strength, probe)
+            _, strength, probe, shift = scores[res.name]
+            start, specs = _first_order_start(problem, act, base_names, cand, strength,
+                                              probe, shift)
             start, rss_size, _ = problem.fit(start, list(specs), specs,
                                              label=f"size {cand.name}", max_steps=15)
             if rnd == 0 and unpolished is not act:
                 # The baseline polish can bend the baseline to mimic part of an effect
                 # (a local optimum the joint refit may not leave); size the entry on
                 # the start of the polish too and keep the better.
-                alt, _ = cand.attach(unpolished, res.strength, probe)
+                alt, _ = cand.attach(unpolished, 0.25 * strength, probe)
                 alt, rss_alt, _ = problem.fit(alt, list(specs), specs,
                                               label=f"size {cand.name} (unpolished)",
                                               max_steps=15)
@@ -389,10 +430,11 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                     start, rss_size = alt, rss_alt
             res.size_drop = rss - rss_size
             sized[res.name] = (start, specs)
-        leading = sorted([r for r in results if r.name in sized],
-                         key=lambda r: -max(r.score, r.size_drop))[:top]
+        ranked = sorted([r for r in results if r.name in sized],
+                        key=lambda r: -max(r.score, r.size_drop))
         excess = max(rss - n_obs, 1e-9)
-        for res in leading:
+
+        def refit(res, pool=pool, sized=sized, rss=rss, nrmse_now=nrmse_now, excess=excess):
             cand = next(c for c in pool if c.name == res.name)
             t0 = time.perf_counter()
             start, specs = sized[res.name]
@@ -411,18 +453,26 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             res.explained = (rss - rss_new) / excess if excess > 0.01 * n_obs else np.nan
             res.chi2_after = rss_new / n_obs
             res.wall_s = time.perf_counter() - t0
+
+        for res in ranked[:top]:
+            refit(res)
+        if not any(_explains(r) and r.criterion_delta < BIC_MIN for r in ranked[:top]):
+            # The first-order ranking misleads when the baseline absorbed much of a
+            # large effect (seen: a slew-limited drive ranked below a constant load
+            # that mimics part of it): the other sized entries get their refit too.
+            for res in ranked[top:]:
+                refit(res)
         refitted = sorted([r for r in results if r.refitted], key=lambda r: r.criterion_delta)
         rounds.append(results)
         if not refitted:
             break
-        best = refitted[0]
+        # The best-scoring entry that explains the residual; else the best overall.
+        best = next((r for r in refitted if _explains(r)), refitted[0])
         best.indistinguishable_from = [
-            r.name for r in refitted[1:]
+            r.name for r in refitted if r is not best
             if r.criterion_delta < BIC_MIN and r.criterion_delta <= INDISTINGUISHABLE
             * best.criterion_delta]
-        explains = (bool(np.isfinite(best.explained) and best.explained >= EXPLAINED_MIN)
-                    or best.chi2_after <= ADEQUATE_CHI2)
-        if best.criterion_delta < BIC_MIN and explains:
+        if best.criterion_delta < BIC_MIN and _explains(best):
             best.accepted = True
             accepted.append(best)
             say(f"[accept] {best.name}: ΔBIC {best.criterion_delta:.1f}, explains "

@@ -8,7 +8,8 @@ concealed-effect generator; every one reduces exactly to the baseline model at i
 
 Input stages (voltage reaching the piezo):
     :class:`LowPassInput` (first order), :class:`SecondOrderInput` (two poles),
-    :class:`SlewLimitedInput` (slew-rate limit).
+    :class:`SlewLimitedInput` (slew-rate limit), :class:`ClippedSlewInput` (hard limit),
+    :class:`ParallelInputs` (stages side by side).
 Extensions (own states and additive terms):
     :class:`Creep` (first-order creep of the stroke), :class:`RateDependentStroke`
     (stroke lag proportional to the voltage rate), :class:`StructuralMode` (a mount
@@ -106,15 +107,20 @@ class SlewLimitedInput(AbstractInputStage):
 
     Small differences follow the command with time constant ``τ``; large ones at the
     slew rate ``S`` at most (the tanh is the smooth saturation, so the stage stays
-    differentiable). Attributes: ``slew`` S [V/s], ``tau`` [s].
+    differentiable). The piezo sees ``u + mix·(s − u)``: ``mix = 1`` the amplifier,
+    ``mix = 0`` the pass-through (the zero setting whose derivative is the signature).
+
+    Attributes: ``slew`` S [V/s], ``tau`` [s], ``mix`` [-].
     """
 
     slew: Float[Array, ""]
     tau: Float[Array, ""]
+    mix: Float[Array, ""]
 
-    def __init__(self, slew, tau):
+    def __init__(self, slew, tau, mix=1.0):
         self.slew = _f(slew)
         self.tau = _f(tau)
+        self.mix = _f(mix)
 
     @property
     def n_states(self) -> int:
@@ -127,7 +133,51 @@ class SlewLimitedInput(AbstractInputStage):
         return self.slew * jnp.tanh((u_command - state) / (self.slew * self.tau))
 
     def voltage(self, state, u_command):
-        return state[0]
+        return u_command + self.mix * (state[0] - u_command)
+
+
+class ClippedSlewInput(SlewLimitedInput):
+    """Slew-limited amplifier with a hard limit: ``ṡ = clip((u − s)/τ, −S, S)``.
+
+    The linear small-signal response up to the slew rate, then exactly ``S``: the
+    corner is not smooth (its derivative in ``S`` jumps), so this form generates data
+    (a current-limited amplifier) rather than being fitted; the catalogue fits the
+    tanh form of :class:`SlewLimitedInput`. Attributes as there.
+    """
+
+    def rate(self, state, u_command):
+        return jnp.clip((u_command - state) / self.tau, -self.slew, self.slew)
+
+
+class ParallelInputs(AbstractInputStage):
+    """Several input stages side by side: the piezo sees the command plus the sum of
+    each stage's departure from it, ``u + Σᵢ (vᵢ − u)``. With every stage at ``mix = 0``
+    it is the pass-through; the diagnosis puts its drive probes (a low-pass and a slew
+    limit) in the one input slot this way. Attribute: ``stages`` (a tuple)."""
+
+    stages: tuple
+
+    @property
+    def n_states(self) -> int:
+        return sum(st.n_states for st in self.stages)
+
+    def _split(self, state):
+        out, start = [], 0
+        for st in self.stages:
+            out.append(state[start:start + st.n_states])
+            start += st.n_states
+        return out
+
+    def initial_state(self, u0):
+        return jnp.concatenate([jnp.atleast_1d(st.initial_state(u0)) for st in self.stages])
+
+    def rate(self, state, u_command):
+        return jnp.concatenate([jnp.atleast_1d(st.rate(s, u_command))
+                                for st, s in zip(self.stages, self._split(state), strict=True)])
+
+    def voltage(self, state, u_command):
+        return u_command + sum(st.voltage(s, u_command) - u_command
+                               for st, s in zip(self.stages, self._split(state), strict=True))
 
 
 # ---- extensions ---------------------------------------------------------------------
