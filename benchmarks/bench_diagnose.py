@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_diagnose.py --json out/bench_diagnose.json
     .venv/bin/python benchmarks/bench_diagnose.py --sets set_03,set_09 --from-profile
+    .venv/bin/python benchmarks/bench_diagnose.py --variants all --json out/variants.json
 
 For each folder of fixtures/concealed/ (17 recordings, the identification protocol with
 one hidden effect, see fixtures/concealed/README.md) run :func:`diagnose` and compare
@@ -10,6 +11,13 @@ effect (``fixtures/identification/truth.json``) and is polished on the data; wit
 ``--from-profile`` it is identified from the default profile first (the paper's three
 steps plus joint, as `stickslip diagnose` does without ``--skip-identify``), which is
 the end-to-end timing of the issue (target: < 10 min per 17-recording set).
+
+``--variants`` runs instead the independent variants of
+:data:`stickslip_jax.diagnose.concealed.VARIANTS`: other functional forms and
+magnitudes of the effects (a second-order amplifier, a two-mode creep, a 2.2 kHz mode,
+an 8 µs delay, a negative load, ...) and an interferometer periodic error that no entry
+covers, simulated in memory on the same protocol (``--reduced``: the tests' 8-recording
+protocol), to check that the diagnosis is not tuned to the fixtures' generator.
 
 Columns: hidden effect, named effect (first accepted; ``unexplained`` when the verdict
 is the unexplained residual; ``-`` when nothing was named), verdict, mean NRMSE before
@@ -31,20 +39,37 @@ import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.diagnose import diagnose  # noqa: E402
+from stickslip_jax.diagnose.concealed import VARIANTS, with_variant  # noqa: E402
+from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 CONCEALED = ROOT / "fixtures" / "concealed"
 
 
-def run_set(folder: Path, *, from_profile: bool, max_rounds: int) -> dict:
-    recs = ss.load_recordings([folder])
+TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
+
+
+def variant_recordings(variant: str, *, reduced: bool, seed: int):
+    """The protocol simulated from the truth with one variant effect, 1 nm noise."""
+    if reduced:  # the 8-recording protocol of tests/test_diagnose.py
+        specs = paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(100.0, 500.0),
+                               step_duration_s=0.03, sine_periods=2)
+    else:
+        specs = paper_protocol()
+    act = with_variant(ss.load_params(TRUTH), variant)
+    return simulate_set(act, specs, noise_m=1e-9, seed=seed)
+
+
+def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=None,
+            **kw) -> dict:
+    recs = ss.load_recordings([folder]) if recs is None else recs
     if from_profile:
         init, steps = ss.lu2015_slc1720(), ("dynamics", "hysteresis", "friction", "joint")
     else:
-        init, steps = ss.load_params(ROOT / "fixtures" / "identification" / "truth.json"), ()
+        init, steps = ss.load_params(TRUTH), ()
     t0 = time.perf_counter()
     d = diagnose(recs, init=init, fix={"Ms": 0.0247}, identify_steps=steps,
-                 max_rounds=max_rounds, echo=lambda s: print("   ", s, flush=True))
+                 max_rounds=max_rounds, echo=lambda s: print("   ", s, flush=True), **kw)
     wall = time.perf_counter() - t0
     floor = float(np.mean([a.noise_m / np.ptp(r.position_m)
                            for a, r in zip(d.analyses_baseline, recs, strict=True)]))
@@ -52,7 +77,7 @@ def run_set(folder: Path, *, from_profile: bool, max_rounds: int) -> dict:
     excess = before - floor
     named = [c.name for c in d.accepted]
     return {
-        "set": folder.name, "verdict": d.verdict, "named": named,
+        "set": getattr(folder, "name", folder), "verdict": d.verdict, "named": named,
         "first": ("unexplained" if d.verdict == "unexplained residual" and not named
                   else named[0] if named else "-"),
         "indistinguishable_from": d.accepted[0].indistinguishable_from if named else [],
@@ -70,16 +95,33 @@ def main() -> None:
     ap.add_argument("--from-profile", action="store_true",
                     help="identify the baseline from the default profile first")
     ap.add_argument("--max-rounds", type=int, default=3)
+    ap.add_argument("--variants", default="",
+                    help="comma-separated independent variants, or 'all' (instead of sets)")
+    ap.add_argument("--reduced", action="store_true",
+                    help="variants on the tests' 8-recording protocol and settings")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     answers = json.loads((CONCEALED / "answers.json").read_text())["sets"]
     chosen = [s for s in args.sets.split(",") if s] or sorted(answers)
+    if args.variants:
+        chosen = list(VARIANTS) if args.variants == "all" else args.variants.split(",")
+        unknown = [v for v in chosen if v not in VARIANTS]
+        if unknown:
+            sys.exit(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
+    # The tests' settings on the reduced protocol (fewer, shorter refits).
+    kw = dict(max_rounds=1, top=2, max_steps=20, size_at_most=3) if args.reduced else {}
     rows = []
-    for name in chosen:
+    for k, name in enumerate(chosen):
         print(f"== {name}", flush=True)
-        row = run_set(CONCEALED / name, from_profile=args.from_profile,
-                      max_rounds=args.max_rounds)
-        row["hidden"] = answers[name]
+        if args.variants:
+            recs = variant_recordings(name, reduced=args.reduced, seed=9000 + 17 * k)
+            row = run_set(name, from_profile=args.from_profile, recs=recs,
+                          **{"max_rounds": args.max_rounds, **kw})
+            row["hidden"] = f"{VARIANTS[name][0]} ({VARIANTS[name][1]})"
+        else:
+            row = run_set(CONCEALED / name, from_profile=args.from_profile,
+                          max_rounds=args.max_rounds)
+            row["hidden"] = answers[name]
         rows.append(row)
         print(json.dumps({k: row[k] for k in ("set", "hidden", "first", "verdict",
                                               "nrmse_before", "nrmse_after", "wall_s")}),
@@ -95,6 +137,8 @@ def main() -> None:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"rows": rows, "from_profile": args.from_profile,
+                                         "variants": bool(args.variants),
+                                         "reduced": args.reduced,
                                          "jax": jax.__version__}, indent=1, default=float))
     sys.exit(0)
 

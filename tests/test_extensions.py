@@ -1,5 +1,7 @@
 """Model extensions of the diagnosis catalogue: zero settings, known responses."""
 
+from pathlib import Path
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -145,3 +147,35 @@ def test_slew_limited_stages_and_parallel_inputs(saw):
     act = eqx.tree_at(lambda a: a.input_stage, base, hard)
     dq = np.asarray(ss.simulate(act, u, dt=rec.dt) - ss.simulate(base, u, dt=rec.dt))
     assert 1e-9 < np.max(np.abs(dq)) < 1e-5
+
+
+def test_periodic_sensor_error_is_a_sine_of_the_position():
+    from stickslip_jax.model.extensions import PeriodicSensorError
+
+    q = jnp.linspace(0.0, 1e-6, 101)
+    out = np.asarray(PeriodicSensorError(2.5e-9)(jnp.zeros(101), q))
+    # A quarter period (79.1 nm) in, the error peaks at its amplitude.
+    err = out - np.asarray(q)
+    np.testing.assert_allclose(np.max(np.abs(err)), 2.5e-9, rtol=2e-3)
+    np.testing.assert_allclose(err[0], 0.0, atol=1e-22)
+    i = int(np.argmin(np.abs(np.asarray(q) - 316.4e-9 / 4)))
+    assert err[i] > 0.99 * 2.5e-9
+
+
+def test_every_independent_variant_changes_the_trace(saw):
+    """Each variant of the concealed effects is a real change of the simulated output
+    (above the 1 nm noise somewhere in a 500 Hz stepping trace or its step response)."""
+    from stickslip_jax.diagnose.concealed import VARIANTS, with_variant
+
+    rec, u = saw
+    base = ss.load_params(Path(__file__).resolve().parent.parent / "fixtures" / "identification"
+                          / "truth.json")
+    step = DriveSpec("step", 40.0, duration_s=0.01).recording()
+    ref = [ss.simulate_recording(base, r) for r in (rec, step)]
+    for name in VARIANTS:
+        act = with_variant(base, name)
+        diff = max(float(np.max(np.abs(ss.simulate_recording(act, r) - q)))
+                   for r, q in zip((rec, step), ref, strict=True))
+        assert diff > 2e-9, (name, diff)
+    with pytest.raises(ValueError, match="unknown variant"):
+        with_variant(base, "magic")

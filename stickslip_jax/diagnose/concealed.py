@@ -37,8 +37,10 @@ from ..model.extensions import (
     ClippedSlewInput,
     Creep,
     ExponentialDrift,
+    PeriodicSensorError,
     PositionRipple,
     RateDependentStroke,
+    SecondOrderInput,
     SensorOutput,
     StructuralMode,
 )
@@ -100,3 +102,44 @@ EFFECTS = ("creep", "drive_bandwidth", "structural_mode", "sensor_delay", "senso
            "external_load", "contact_damping", "viscous_friction", "stribeck",
            "rate_dependent_hysteresis", "uncatalogued", "none")
 """Every concealed set the generator makes (``none``: the null set)."""
+
+
+VARIANTS: dict[str, tuple[str, str]] = {
+    "creep_two_modes": ("creep", "two unequal modes, 3 % at 8 ms and 1 % at 60 ms "
+                                 "of the small-signal stroke per volt"),
+    "drive_second_order": ("drive_bandwidth", "second-order amplifier, 9 kHz, damping "
+                                              "0.5 (catalogue: first-order or slew)"),
+    "mode_2k": ("structural_mode", "2.2 kHz mount mode, damping 0.05, 0.8e-7 m/N"),
+    "delay_8us": ("sensor_delay", "8 µs interferometer delay"),
+    "load_negative": ("external_load", "-0.02 N on the slider"),
+    "rho1_small": ("contact_damping", "rho1 = 3 N·s/m"),
+    "rate_fast": ("rate_dependent_hysteresis", "stroke lag 5 % at 0.12 ms"),
+    "interferometer_periodic": ("uncatalogued", "interferometer periodic error, 2.5 nm "
+                                                "at a 316.4 nm period"),
+}
+"""Independent variants of the concealed effects: other functional forms and magnitudes
+than :func:`with_effect` (which the catalogue was developed on), to check that the
+diagnosis is not tuned to one generator. ``name → (expected verdict name, form)``;
+``uncatalogued`` expects no name."""
+
+
+def with_variant(act: Actuator, variant: str) -> Actuator:
+    """``act`` with the hidden variant effect (see :data:`VARIANTS`)."""
+    w = _pi_slope(act)
+    if variant == "creep_two_modes":
+        return act.with_extension(Creep(0.03 * w, 8e-3)).with_extension(Creep(0.01 * w, 60e-3))
+    if variant == "drive_second_order":
+        return eqx.tree_at(lambda a: a.input_stage, act, SecondOrderInput(9000.0, 0.5))
+    if variant == "mode_2k":
+        return act.with_extension(StructuralMode(2200.0, 0.05, 0.8e-7))
+    if variant == "delay_8us":
+        return eqx.tree_at(lambda a: a.output_map, act, SensorOutput(delay=8e-6))
+    if variant == "load_negative":
+        return eqx.tree_at(lambda a: a.slider.F_ext, act, np.asarray(-0.02))
+    if variant == "rho1_small":
+        return eqx.tree_at(lambda a: a.friction.rho1, act, np.asarray(3.0))
+    if variant == "rate_fast":
+        return act.with_extension(RateDependentStroke(0.05 * w, 0.12e-3))
+    if variant == "interferometer_periodic":
+        return eqx.tree_at(lambda a: a.output_map, act, PeriodicSensorError(2.5e-9))
+    raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")

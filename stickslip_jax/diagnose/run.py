@@ -48,8 +48,8 @@ import numpy as np
 
 from ..identify.dataset import Dataset
 from ..identify.parameters import SCALE_INVARIANT, ParameterMap, ParameterSpec
-from ..identify.residuals import TraceResiduals, nrmse_per_recording
-from ..identify.solve import solve_least_squares
+from ..identify.residuals import TraceResiduals
+from ..identify.solve import solve_least_squares, value_and_jacobian
 from ..identify.steps import DYNAMICS, STEPS, identify
 from ..model.actuator import Actuator
 from ..model.extensions import LEARNED_FEATURES, LearnedForce
@@ -84,8 +84,21 @@ class WhitenedResiduals(eqx.Module):
     inv_sigma: jax.Array
 
     def __call__(self, theta, args=None):
-        r = self.inner(theta).reshape(self.inv_sigma.shape[0], -1)
+        return self.whiten(self.inner(theta))
+
+    def whiten(self, r):
+        """In-metres residual vector ``r`` → divided by each recording's σ."""
+        r = r.reshape(self.inv_sigma.shape[0], -1)
         return (r * self.inv_sigma[:, None]).reshape(-1)
+
+
+@eqx.filter_jit
+def _whitened_and_output(res: WhitenedResiduals):
+    """Whitened residual and simulated outputs (B, T) [m] at ``res``'s actuator, from
+    one simulation; compiled once per actuator structure (a candidate sized at several
+    strengths compiles once)."""
+    q = res.inner.simulate(jnp.zeros(0))
+    return res.whiten(res.inner.from_output(q)), q
 
 
 @dataclass
@@ -164,12 +177,17 @@ class _Problem:
                                  jnp.asarray(1.0 / self.sigmas))
 
     def evaluate(self, act: Actuator):
-        """(whitened RSS, mean NRMSE, simulated outputs) of ``act``."""
-        res = self.residuals(ParameterMap.make(act, []))
-        theta = jnp.zeros(0)
-        q = np.asarray(res.inner.simulate(theta))
-        r = np.asarray(res(theta))
-        return float(r @ r), nrmse_per_recording(q, self.data), q
+        """(whitened RSS, NRMSE per recording, simulated outputs) of ``act``."""
+        r, q = _whitened_and_output(self.residuals(ParameterMap.make(act, [])))
+        r = np.asarray(r)
+        return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
+
+    def nrmse_from_whitened(self, r) -> np.ndarray:
+        """NRMSE per recording [-] from a whitened residual vector (no simulation)."""
+        d = self.data
+        rows = np.asarray(r).reshape(len(d), -1) * self.sigmas[:, None]
+        n = np.sum(d.mask, axis=-1)
+        return np.sqrt(np.sum(rows**2, axis=1) / n) / np.asarray(d.scale)
 
     def fit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
             max_steps: int) -> tuple[Actuator, float, object]:
@@ -214,10 +232,7 @@ def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
     names = base_names + [e[2] for e in entries]
     specs = {e[2]: e[3] for e in entries}
     pmap = ParameterMap.make(probe_act, names, specs)
-    res = problem.residuals(pmap)
-    theta = pmap.zeros()
-    jac = np.asarray(jax.jit(jax.jacfwd(res))(theta))
-    r = np.asarray(res(theta))
+    r, jac = value_and_jacobian(problem.residuals(pmap), pmap.zeros())
     n_base = jac.shape[1] - len(entries)
     jb = jac[:, :n_base]
     norms = np.linalg.norm(jb, axis=0)
@@ -295,18 +310,15 @@ def _fit_learned(problem: _Problem, act: Actuator, base_names, rss0: float,
         def get(a):
             return a.extensions[-1].coef
         spec = {"learned_coef": ParameterSpec(get, "linear", 0.01, "N")}
-        fitted, rss, _ = problem.fit(trial, base_names + ["learned_coef"], spec,
-                                     label=f"learned {stage}", max_steps=max_steps)
+        fitted, rss, out = problem.fit(trial, base_names + ["learned_coef"], spec,
+                                       label=f"learned {stage}", max_steps=max_steps)
         if stage == "sparse":
             break
-        # t-statistics of the coefficients from the whitened Jacobian (σ = 1).
-        try:
-            pmap = ParameterMap.make(fitted, base_names + ["learned_coef"], spec)
-        except ValueError:  # the fit left the PI loop at the edge of monotone: no t test
-            break
-        jac = np.asarray(jax.jit(jax.jacfwd(problem.residuals(pmap)))(pmap.zeros()))
+        # t-statistics of the coefficients from the whitened Jacobian at the optimum
+        # (σ = 1), which the solver holds.
+        jac = out.jacobian
         cov = np.linalg.pinv(jac.T @ jac)
-        sl = pmap.slices()["learned_coef"]
+        sl = ParameterMap.make(trial, base_names + ["learned_coef"], spec).slices()["learned_coef"]
         c = np.asarray(fitted.extensions[-1].coef)
         se = np.sqrt(np.maximum(np.diag(cov)[sl], 1e-300)) * 0.01
         t = c / se
@@ -438,9 +450,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             cand = next(c for c in pool if c.name == res.name)
             t0 = time.perf_counter()
             start, specs = sized[res.name]
-            fitted, rss_new, _ = problem.fit(start, base_names + list(specs), specs,
-                                             label=f"refit {cand.name}", max_steps=max_steps)
-            rss_new, nrmse_new, _ = problem.evaluate(fitted)
+            fitted, rss_new, out = problem.fit(start, base_names + list(specs), specs,
+                                               label=f"refit {cand.name}", max_steps=max_steps)
+            nrmse_new = problem.nrmse_from_whitened(out.residual)
             k = sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values())
             res.refitted = True
             res.actuator = fitted

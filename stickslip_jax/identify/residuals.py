@@ -165,8 +165,11 @@ class TraceResiduals(eqx.Module):
         return simulate_dataset(self.pmap.actuator(theta), self.data, substeps=self.substeps)
 
     def __call__(self, theta, args=None):
+        return self.from_output(self.simulate(theta))
+
+    def from_output(self, q):
+        """The residual vector for simulated outputs ``q`` (B, T) [m]."""
         d = self.data
-        q = self.simulate(theta)
         mask = jnp.asarray(d.mask)
         n = jnp.sum(mask, axis=-1, keepdims=True)
         scale = jnp.asarray(d.scale)[:, None]
@@ -179,6 +182,30 @@ class TraceResiduals(eqx.Module):
         if self.w_steps > 0:
             parts += self._step_terms(q)
         return jnp.concatenate(parts)
+
+    def _time_rows(self, x):
+        """The time-domain rows of a residual-shaped array ``x`` (vector or Jacobian),
+        as (B, T, ...) per recording and sample."""
+        b, t = self.data.measured.shape
+        return np.asarray(x)[: b * t].reshape((b, t) + np.shape(x)[1:])
+
+    def nrmse_from_residual(self, r) -> np.ndarray:
+        """Per-recording NRMSE [-] from a residual vector of this function (its time
+        part is ``w_time``·NRMSE-scaled, so no simulation is needed)."""
+        if self.in_metres:
+            raise ValueError("nrmse_from_residual needs the scaled residual, not in_metres")
+        rows = self._time_rows(r)
+        return np.sqrt(np.sum(rows**2, axis=1)) / self.w_time
+
+    def in_metres_rows(self, x) -> np.ndarray:
+        """What ``in_metres=True`` would give, from this function's residual vector or
+        Jacobian ``x``: the time rows unscaled to metres, flattened as that vector."""
+        d = self.data
+        n = np.sum(d.mask, axis=-1)
+        factor = np.asarray(d.scale) * np.sqrt(n) / self.w_time
+        rows = self._time_rows(x)
+        rows = rows * factor.reshape((-1,) + (1,) * (rows.ndim - 1))
+        return rows.reshape((-1,) + rows.shape[2:])
 
     def _psd_terms(self, q):
         out = []

@@ -19,6 +19,7 @@ Extensions (own states and additive terms):
     library of state features).
 Output maps (what the sensor makes of q):
     :class:`SensorOutput` (delay and linear drift), :class:`ExponentialDrift`,
+    :class:`PeriodicSensorError` (interferometer nonlinearity, no catalogue entry),
     :class:`ChainedOutput`.
 """
 
@@ -389,6 +390,26 @@ class ExponentialDrift(AbstractOutputMap):
 
     def __call__(self, t, q):
         return q + self.amplitude * (1.0 - jnp.exp(-t / self.time))
+
+
+class PeriodicSensorError(AbstractOutputMap):
+    """Periodic nonlinearity of a displacement interferometer (mixing of the two
+    polarisations): ``q + amplitude·sin(2π·q/period)``. Not in the diagnosis
+    catalogue; the concealed-variant generator uses it as an effect no entry names.
+
+    Attributes: ``amplitude`` [m], ``period`` [m] (λ/2 = 316.4 nm for a HeNe laser
+    in a single-pass Michelson).
+    """
+
+    amplitude: Float[Array, ""]
+    period: Float[Array, ""]
+
+    def __init__(self, amplitude, period=316.4e-9):
+        self.amplitude = _f(amplitude)
+        self.period = _f(period)
+
+    def __call__(self, t, q):
+        return q + self.amplitude * jnp.sin(2.0 * jnp.pi * q / self.period)
 
 
 class ChainedOutput(AbstractOutputMap):

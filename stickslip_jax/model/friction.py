@@ -39,11 +39,19 @@ def transition_alpha(abs_z, z_ba, zss_mag):
 
     ``abs_z``, ``z_ba``, ``zss_mag`` in m. When ``|z_ss| = z_ba`` (ratio 1) the ramp
     collapses into a step at ``z_ba``.
+
+    Written as ``sin²(π·s/2)`` of the clipped ramp coordinate
+    ``s = clip((|z| − z_ba)/(|z_ss| − z_ba), 0, 1)``, which equals the contract's
+    ``½·sin(π·(|z| − (|z_ss| + z_ba)/2)/(|z_ss| − z_ba)) + ½`` on the ramp and is
+    exactly 0 and 1 outside it: one clip instead of a chain of selections, and a
+    reciprocal of the width that is loop-invariant (hoisted out of the integrator).
     """
     width = zss_mag - z_ba
-    safe_width = jnp.where(width > 0, width, 1.0)
-    ramp = 0.5 * jnp.sin(jnp.pi * (abs_z - 0.5 * (zss_mag + z_ba)) / safe_width) + 0.5
-    return jnp.where(abs_z <= z_ba, 0.0, jnp.where(abs_z >= zss_mag, 1.0, ramp))
+    ramp_exists = width > 0
+    inv_width = 1.0 / jnp.where(ramp_exists, width, 1.0)
+    s = jnp.clip((abs_z - z_ba) * inv_width, 0.0, 1.0)
+    smooth = jnp.sin(0.5 * jnp.pi * s) ** 2
+    return jnp.where(ramp_exists, smooth, jnp.where(abs_z > z_ba, 1.0, 0.0))
 
 
 class AbstractElastoPlastic(AbstractFriction):
@@ -82,7 +90,7 @@ class AbstractElastoPlastic(AbstractFriction):
         zss = self.zss_magnitude(xdot, drive)
         same_sign = xdot * z > 0
         alpha = jnp.where(same_sign, transition_alpha(jnp.abs(z), self.z_ba(drive), zss), 0.0)
-        return xdot - alpha * jnp.abs(xdot) * z / zss
+        return xdot - alpha * jnp.abs(xdot) * z * (1.0 / zss)
 
     def force(self, z, zdot, xdot, drive):
         return self.rho0 * z + self.rho1 * zdot + self.rho2 * xdot

@@ -41,4 +41,4 @@ class PiezoElement(eqx.Module):
     def acceleration(self, x1, v1, stroke, friction_force, extra_force=0.0):
         """ẍ1 [m/s²] from deformation [m], rate [m/s], free stroke [m], forces [N]."""
         rhs = self.Kp * (stroke - x1) - self.Dp * v1 - self.preload_force - friction_force
-        return (rhs + extra_force) / self.Mp
+        return (rhs + extra_force) * (1.0 / self.Mp)

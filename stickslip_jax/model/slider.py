@@ -42,4 +42,4 @@ class Slider(eqx.Module):
     def acceleration(self, x2, v2, friction_force, extra_force=0.0):
         """ẍ2 [m/s²] from position [m], velocity [m/s] and forces [N]."""
         rhs = friction_force + self.external_force(x2) - self.Ds * v2 + extra_force
-        return rhs / self.Ms
+        return rhs * (1.0 / self.Ms)
