@@ -47,7 +47,9 @@ def test_equal_elastoplastic_contacts_are_the_lumped_contact(act):
 
 
 def test_ceim_at_its_reference_preload_is_the_elastoplastic_law(act, ceim_act):
-    np.testing.assert_array_equal(trace(ceim_act), trace(act))
+    # Same law, different arithmetic (preload scaling): equal to rounding, not bit for bit.
+    q0 = trace(act)
+    np.testing.assert_allclose(trace(ceim_act), q0, rtol=0, atol=1e-14 * np.ptp(q0))
     f = ceim_act.friction
     assert float(f.plastic_strain()) == pytest.approx(float(f.zss_magnitude()), rel=1e-12)
 

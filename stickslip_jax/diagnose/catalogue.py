@@ -31,6 +31,7 @@ from ..model.extensions import (
     LowPassInput,
     ParallelInputs,
     RateDependentStroke,
+    SecondOrderInput,
     SensorOutput,
     SlewLimitedInput,
     StructuralMode,
@@ -74,6 +75,11 @@ class Candidate:
     probes: Callable[[Actuator, dict], list[Probe]]
     attach: Callable[[Actuator, float, Probe], tuple[Actuator, dict[str, ParameterSpec]]]
     needs: Callable[[list], str | None] = lambda recs: None
+    seeds: Callable[[Actuator, dict], list[tuple[Actuator, dict[str, ParameterSpec]]]] = \
+        lambda act, hints: []
+    """Extra starting points for the sizing (the entry attached at settings spread over
+    its plausible range), for effects whose cost is too rugged in a nonlinear parameter
+    for the first-order strength to be a usable start."""
 
 
 def _ext(cls, index: int = -1):
@@ -167,7 +173,9 @@ def _mode_attach(act, strength, probe):
 def _bandwidth_probes(act, hints):
     """Two forms of a slow drive side by side in the input slot (:class:`ParallelInputs`):
     a first-order low-pass and a slew-rate limit at half the fastest slope the commands
-    have (a stage that never limits leaves no trace)."""
+    have (a stage that never limits leaves no trace). An under-damped amplifier is not
+    probed: its first-order score at zero effect is unreliable (the cost is rugged in
+    the corner frequency), so it enters through :func:`_bandwidth_seeds`."""
     def install(stage):
         def put(a):
             slot = a.input_stage
@@ -213,6 +221,17 @@ def _bandwidth_attach(act, strength, probe):
     new = eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(slew, st["tau"]))
     return new, {"drive_slew": ParameterSpec(lambda a: a.input_stage.slew, "log", 1.0, "V/s"),
                  "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s")}
+
+
+def _bandwidth_seeds(act, hints):
+    """Under-damped two-pole amplifiers over 3-20 kHz and damping 0.3-0.7: a step
+    edge's overshoot sets the slip of every period, so the cost in the corner frequency
+    is rugged and a start from the first-order strength is often in the wrong valley."""
+    specs = {"drive_frequency": ParameterSpec(lambda a: a.input_stage.frequency, "log", 1.0,
+                                              "Hz"),
+             "drive_damping": ParameterSpec(lambda a: a.input_stage.damping, "log", 1.0, "-")}
+    return [(eqx.tree_at(lambda a: a.input_stage, act, SecondOrderInput(f0, zeta)), specs)
+            for f0 in np.geomspace(3e3, 20e3, 6) for zeta in (0.3, 0.5, 0.7)]
 
 
 def _delay_probes(act, hints):
@@ -314,9 +333,9 @@ CATALOGUE: tuple[Candidate, ...] = (
               "voltage rate: loop width and phase of sine and ramp phases",
               _rate_probes, _rate_attach),
     Candidate("drive_bandwidth", "input_stage", "the piezo voltage lags the command "
-              "(low-pass) or cannot follow fast edges (slew limit): rounded edges, smaller "
-              "slips at high frequency", _bandwidth_probes,
-              _bandwidth_attach),
+              "(low-pass) or cannot follow fast edges (slew limit), or overshoots them "
+              "(under-damped two-pole amplifier): edges and slips change with the drive",
+              _bandwidth_probes, _bandwidth_attach, seeds=_bandwidth_seeds),
     Candidate("structural_mode", "extension", "an extra resonance in the residual PSD, "
               "ringing after edges", _mode_probes, _mode_attach),
     Candidate("sensor_delay", "output_map", "residual proportional to the output's rate: "

@@ -109,6 +109,8 @@ VARIANTS: dict[str, tuple[str, str]] = {
                                  "of the small-signal stroke per volt"),
     "drive_second_order": ("drive_bandwidth", "second-order amplifier, 9 kHz, damping "
                                               "0.5 (catalogue: first-order or slew)"),
+    "drive_two_pole_mild": ("drive_bandwidth", "second-order amplifier, 15 kHz, damping "
+                                               "0.7"),
     "mode_2k": ("structural_mode", "2.2 kHz mount mode, damping 0.05, 0.8e-7 m/N"),
     "delay_8us": ("sensor_delay", "8 µs interferometer delay"),
     "load_negative": ("external_load", "-0.02 N on the slider"),
@@ -130,6 +132,8 @@ def with_variant(act: Actuator, variant: str) -> Actuator:
         return act.with_extension(Creep(0.03 * w, 8e-3)).with_extension(Creep(0.01 * w, 60e-3))
     if variant == "drive_second_order":
         return eqx.tree_at(lambda a: a.input_stage, act, SecondOrderInput(9000.0, 0.5))
+    if variant == "drive_two_pole_mild":
+        return eqx.tree_at(lambda a: a.input_stage, act, SecondOrderInput(15000.0, 0.7))
     if variant == "mode_2k":
         return act.with_extension(StructuralMode(2200.0, 0.05, 0.8e-7))
     if variant == "delay_8us":

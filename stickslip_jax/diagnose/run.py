@@ -72,6 +72,9 @@ ADEQUATE_CHI2 = 1.10
 few per cent (period repeatability, third differences)."""
 SIZE_AT_MOST = 5
 """Entries sized per round (the largest |score| first)."""
+WRONG_SIGN_SHARE = 0.2
+"""An entry whose probes all have the wrong first-order sign is sized anyway when its
+|score| reaches this share of the round's largest."""
 INDISTINGUISHABLE = 0.9
 """An entry whose ΔBIC reaches this share of the best one's is indistinguishable."""
 
@@ -258,7 +261,11 @@ def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
         # slope change) only pays once the baseline gives back what it absorbed.
         shift = -np.linalg.lstsq(jb_n, r + c * beta, rcond=1e-10)[0] / np.where(
             norms > 0, norms, 1.0)
-        if cand.name not in out or score > out[cand.name][0]:
+        # Each entry's best probe: the highest admissible score, or, when every probe
+        # of the entry has the wrong first-order sign, the strongest of them (the one
+        # worth sizing in case the sign turns around).
+        if cand.name not in out or (score >= 0, abs(score)) > (out[cand.name][0] >= 0,
+                                                                abs(out[cand.name][0])):
             out[cand.name] = (score, beta * spec.scale, probe, shift)
     return out
 
@@ -269,13 +276,17 @@ def _first_order_start(problem: _Problem, act: Actuator, base_names: list[str],
     moved by the same fraction of its share of the step: the fraction (1, 1/2, 1/4, 1/8)
     whose start costs least (the linearised step overshoots for large effects)."""
     pmap = ParameterMap.make(act, base_names)
+    # A linearised shift beyond a factor e of any baseline quantity (θ is logarithmic
+    # for them) is extrapolation, not a first-order move: cap it.
+    shift = np.clip(shift, -1.0, 1.0)
     best = None
     for frac in (1.0, 0.5, 0.25, 0.125):
         moved = pmap.actuator(jnp.asarray(frac * shift))
         try:
             start, specs = cand.attach(moved, frac * strength, probe)
+            ParameterMap.make(start, base_names)  # the refit must be able to start here
             cost = problem.evaluate(start)[0]
-        except ValueError:  # the moved PI loop is not monotone
+        except ValueError:  # e.g. the moved PI loop is not monotone (rounding)
             continue
         if np.isfinite(cost) and (best is None or cost < best[0]):
             best = (cost, start, specs)
@@ -283,6 +294,20 @@ def _first_order_start(problem: _Problem, act: Actuator, base_names: list[str],
         start, specs = cand.attach(act, 0.25 * strength, probe)
         return start, specs
     return best[1], best[2]
+
+
+def _best_seed(problem: _Problem, act: Actuator, base_names: list[str], cand: Candidate):
+    """``(cost, start, specs)`` of the entry's cheapest seed on ``act``, or None."""
+    best = None
+    for start, specs in cand.seeds(act, {}):
+        try:
+            ParameterMap.make(start, base_names)
+            cost = problem.evaluate(start)[0]
+        except ValueError:
+            continue
+        if np.isfinite(cost) and (best is None or cost < best[0]):
+            best = (cost, start, specs)
+    return best
 
 
 def _explains(r: CandidateResult) -> bool:
@@ -420,12 +445,39 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         # the first-order sign around) with the baseline held: its own 1-3 parameters,
         # cheap. Rank by the larger of the score and the drop the sizing achieved.
         sized = {}
-        # Admissible signs first, then by |score|.
-        for res in sorted(results, key=lambda r: (r.score < 0, -abs(r.score)))[:size_at_most]:
+        # Admissible signs first, then by |score|; and any entry whose first-order sign
+        # is wrong but whose |score| is within WRONG_SIGN_SHARE of the best: a large
+        # effect the polished baseline bent itself to mimic can flip the first-order
+        # sign. Entries with seeds are always sized: their cost is rugged in a
+        # nonlinear parameter, so a score taken at zero effect says little about an
+        # effect at a distance (seen: under-damped amplifiers at 9 and 15 kHz scored
+        # with the wrong sign, one at 5 % of the best |score|).
+        order = sorted(results, key=lambda r: (r.score < 0, -abs(r.score)))
+        best_score = max((abs(r.score) for r in results), default=0.0)
+        has_seeds = {c.name for c in pool if c.seeds(init, {})}
+        chosen = order[:size_at_most] + [
+            r for r in order[size_at_most:]
+            if (r.score < 0 and abs(r.score) >= WRONG_SIGN_SHARE * best_score)
+            or r.name in has_seeds]
+        for res in chosen:
             if abs(res.score) < SCORE_MIN:
                 continue
             cand = next(c for c in pool if c.name == res.name)
             _, strength, probe, shift = scores[res.name]
+            if res.name in has_seeds and res.score < 0:
+                # The linearisation points the wrong way: start from the cheapest seed,
+                # on the baseline before its polish (which bends to mimic the effect).
+                on = unpolished if rnd == 0 else act
+                seeded = _best_seed(problem, on, base_names, cand)
+                if seeded is None:
+                    continue
+                _, start, specs = seeded
+                start, rss_size, _ = problem.fit(start, list(specs), specs,
+                                                 label=f"size {cand.name} (seed)",
+                                                 max_steps=15)
+                res.size_drop = rss - rss_size
+                sized[res.name] = (start, specs)
+                continue
             start, specs = _first_order_start(problem, act, base_names, cand, strength,
                                               probe, shift)
             start, rss_size, _ = problem.fit(start, list(specs), specs,
@@ -434,12 +486,12 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                 # The baseline polish can bend the baseline to mimic part of an effect
                 # (a local optimum the joint refit may not leave); size the entry on
                 # the start of the polish too and keep the better.
-                alt, _ = cand.attach(unpolished, 0.25 * strength, probe)
-                alt, rss_alt, _ = problem.fit(alt, list(specs), specs,
+                alt, alt_specs = cand.attach(unpolished, 0.25 * strength, probe)
+                alt, rss_alt, _ = problem.fit(alt, list(alt_specs), alt_specs,
                                               label=f"size {cand.name} (unpolished)",
                                               max_steps=15)
                 if rss_alt < rss_size:
-                    start, rss_size = alt, rss_alt
+                    start, rss_size, specs = alt, rss_alt, alt_specs
             res.size_drop = rss - rss_size
             sized[res.name] = (start, specs)
         ranked = sorted([r for r in results if r.name in sized],
@@ -450,8 +502,14 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             cand = next(c for c in pool if c.name == res.name)
             t0 = time.perf_counter()
             start, specs = sized[res.name]
-            fitted, rss_new, out = problem.fit(start, base_names + list(specs), specs,
-                                               label=f"refit {cand.name}", max_steps=max_steps)
+            try:
+                fitted, rss_new, out = problem.fit(start, base_names + list(specs), specs,
+                                                   label=f"refit {cand.name}",
+                                                   max_steps=max_steps)
+            except ValueError as err:  # no valid start (e.g. a PI loop at the edge)
+                res.note = f"refit not possible: {err}"
+                say(f"[refit {cand.name}] {res.note}")
+                return
             nrmse_new = problem.nrmse_from_whitened(out.residual)
             k = sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values())
             res.refitted = True

@@ -77,6 +77,9 @@ class LowPassInput(AbstractInputStage):
 class SecondOrderInput(AbstractInputStage):
     """Drive amplifier with a two-pole low-pass: ``s̈ = ω²(u − s) − 2ζω·ṡ``.
 
+    Under-damped (ζ < 0.707) it overshoots the command's fast edges, as an amplifier
+    driving a capacitive load through a cable often does.
+
     Attributes: ``frequency`` corner [Hz], ``damping`` ζ [-] (0.707: Butterworth).
     """
 
