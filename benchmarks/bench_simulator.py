@@ -58,7 +58,9 @@ What is timed
 5. Derivatives of q(θ) where θ = (Mp, Dp, Kp, Ms, Ds, rho0, z_ba_forward,
    z_ba_backward, zba_ratio), put into the Actuator with ``eqx.tree_at``:
    ``jax.jacfwd`` of the trace (T x 9), again with the 35 PI weights added (T x 44),
-   and ``jax.grad`` of sum((q − q_target)²), q_target being the trace at θ·1.01.
+   and ``jax.grad`` of sum((q − q_target)²), q_target being the trace at θ·1.01,
+   with the default adjoint (reverse mode through the checkpointed scan) and with
+   ``adjoint=ForwardSensitivities()`` (the gradient as Jᵀ·c from forward mode).
    All jitted, compiled ahead of time (compile timed), timed interleaved with the
    plain forward θ → q, and reported as multiples of it. (z_ba_backward has a zero
    column on a forward drive; it still costs a tangent.)
@@ -104,6 +106,7 @@ import scipy  # noqa: E402
 from numba import njit, prange  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
+from stickslip_jax.adjoint import ForwardSensitivities  # noqa: E402
 from stickslip_jax.model.profiles import lu2015_slc1720  # noqa: E402
 from stickslip_jax.signals import sawtooth  # noqa: E402
 from stickslip_jax.simulate import DEFAULT_SUBSTEPS, simulate, simulate_batch  # noqa: E402
@@ -408,8 +411,10 @@ def aot_compile(fn, *args) -> tuple[object, dict]:
     return compiled, {"lower_s": t1 - t0, "compile_s": t2 - t1, "total_s": t2 - t0}
 
 
-def parameter_function(actuator, substeps, *, with_pi: bool):
-    """θ → q for the physical parameters (and the PI weights when ``with_pi``)."""
+def parameter_function(actuator, substeps, *, with_pi: bool, adjoint=None):
+    """θ → q for the physical parameters (and the PI weights when ``with_pi``);
+    ``adjoint`` (default: the simulator's) is passed to ``simulate``."""
+    extra = {} if adjoint is None else {"adjoint": adjoint}
 
     def leaves(a):
         out = (a.piezo.Mp, a.piezo.Dp, a.piezo.Kp, a.slider.Ms, a.slider.Ds, a.friction.rho0,
@@ -422,7 +427,8 @@ def parameter_function(actuator, substeps, *, with_pi: bool):
         values = tuple(theta[i] for i in range(len(PHYSICAL)))
         if with_pi:
             values = values + (theta[len(PHYSICAL):],)
-        return simulate(eqx.tree_at(leaves, actuator, values), u, dt=DT, substeps=substeps)
+        return simulate(eqx.tree_at(leaves, actuator, values), u, dt=DT, substeps=substeps,
+                        **extra)
 
     return q_of, theta0
 
@@ -691,8 +697,14 @@ def run(args) -> dict:
     q_all, theta_all = parameter_function(actuator, substeps, with_pi=True)
     target = jax.block_until_ready(jax.jit(q_phys)(theta_phys * 1.01, u))
 
+    q_sens, _ = parameter_function(actuator, substeps, with_pi=False,
+                                   adjoint=ForwardSensitivities())
+
     def loss(theta, u, target):
         return jnp.sum((q_phys(theta, u) - target) ** 2)
+
+    def loss_sens(theta, u, target):
+        return jnp.sum((q_sens(theta, u) - target) ** 2)
 
     deriv_comp = {}
     c_fwd, deriv_comp["forward"] = aot_compile(q_phys, theta_phys, u)
@@ -701,12 +713,15 @@ def run(args) -> dict:
     c_grad, deriv_comp["grad_phys"] = aot_compile(jax.grad(loss), theta_phys, u, target)
     c_gfwd, deriv_comp["grad_phys_forward_mode"] = aot_compile(
         jax.jacfwd(loss), theta_phys, u, target)
+    c_gsens, deriv_comp["grad_phys_forward_sensitivities"] = aot_compile(
+        jax.grad(loss_sens), theta_phys, u, target)
     dvariants = {
         "forward": lambda: c_fwd(theta_phys, u),
         "jacfwd_phys": lambda: c_jphys(theta_phys, u),
         "jacfwd_phys_pi": lambda: c_jall(theta_all, u),
         "grad_phys": lambda: c_grad(theta_phys, u, target),
         "grad_phys_forward_mode": lambda: c_gfwd(theta_phys, u, target),
+        "grad_phys_forward_sensitivities": lambda: c_gsens(theta_phys, u, target),
     }
     deriv, douts = interleaved(dvariants, repeats)
     base = deriv["forward"]["median_s"]
@@ -721,6 +736,9 @@ def run(args) -> dict:
     g_fwd = np.asarray(douts["grad_phys_forward_mode"])
     deriv["grad_phys_forward_mode"]["max_rel_diff_vs_grad"] = float(
         np.max(np.abs(g_fwd - g_rev)) / np.max(np.abs(g_rev)))
+    g_sens = np.asarray(douts["grad_phys_forward_sensitivities"])
+    deriv["grad_phys_forward_sensitivities"]["max_rel_diff_vs_grad"] = float(
+        np.max(np.abs(g_sens - g_rev)) / np.max(np.abs(g_rev)))
     deriv["parameters"] = list(PHYSICAL)
     res["derivatives"] = deriv
 
@@ -798,6 +816,8 @@ def run(args) -> dict:
               TARGETS["grad_over_forward"]),
         ratio("same gradient by forward mode (jacfwd of loss) / fwd", "grad_phys_forward_mode",
               "forward"),
+        ratio("jax.grad with adjoint=ForwardSensitivities() / forward",
+              "grad_phys_forward_sensitivities", "forward", TARGETS["grad_over_forward"]),
         limit("worst compile time [s]", worst_compile[1], TARGETS["compile_s"],
               worst_compile[0]),
         limit("gradient memory, 10 s trace [MB]", mem_10s, TARGETS["grad_memory_10s_MB"],

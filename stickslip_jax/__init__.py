@@ -7,6 +7,7 @@ The library never changes global JAX settings. Enable double precision before us
     jax.config.update("jax_enable_x64", True)
 """
 
+from .adjoint import AbstractAdjoint, CheckpointedScan, ForwardSensitivities
 from .diagnose import CATALOGUE, Diagnosis, diagnose
 from .files import InputOverwriteError, OutputExistsError
 from .identify import HysteresisOnlyModel, Identification, fit_hysteresis_only, identify
@@ -132,6 +133,7 @@ __all__ = [
     "params_from_actuator", "save_params", "save_recording", "sawtooth", "simulate",
     "simulate_batch", "simulate_recording", "simulate_recordings", "simulate_states", "sine",
     "stack_drives", "Trajectory",
+    "AbstractAdjoint", "CheckpointedScan", "ForwardSensitivities",
     "step", "transition_alpha",
     "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
     "CATALOGUE", "Diagnosis", "diagnose",

@@ -120,6 +120,42 @@ def test_reverse_mode_gradient(setup):
     assert np.all(np.abs(g) > 1e-6 * np.abs(g).max())
 
 
+@pytest.mark.parametrize("max_directions", [64, 2])
+def test_forward_sensitivities_give_the_same_derivatives(setup, max_directions):
+    """adjoint=ForwardSensitivities() changes how a gradient is computed, not its value:
+    the gradient over the parameters, over the voltage and over both, jacfwd and the
+    batched simulation all equal the default's (with max_directions=2 the seven
+    perturbed parameters take the fallback: plain JAX derivatives)."""
+    base, u, dt = ss.lu2015_slc1720(), setup["u"], DT
+    adjoint = ss.ForwardSensitivities(max_directions=max_directions)
+    target = np.asarray(setup["q_of"](jnp.full(len(NAMES), 0.01)))
+
+    def q(delta, voltage, adj):
+        a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
+        return ss.simulate(a, voltage, dt=dt, adjoint=adj)
+
+    def loss(delta, voltage, adj):
+        return jnp.mean((q(delta, voltage, adj) - target) ** 2) / 1e-18
+
+    zero = setup["zero"]
+    for argnums in (0, 1, (0, 1)):
+        ref = jax.grad(loss, argnums)(zero, u, ss.CheckpointedScan())
+        got = jax.grad(loss, argnums)(zero, u, adjoint)
+        for r, g in zip(jax.tree.leaves(ref), jax.tree.leaves(got), strict=True):
+            np.testing.assert_allclose(g, r, rtol=1e-9, atol=1e-12 * np.abs(r).max())
+            assert np.abs(r).max() > 0
+    jac = jax.jacfwd(q)(zero, u, adjoint)
+    np.testing.assert_allclose(jac, setup["jac"], rtol=1e-9, atol=1e-12 * np.abs(jac).max())
+
+    def batch_loss(delta, adj):
+        a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
+        qs = ss.simulate_batch(a, jnp.stack([u, setup["u_scan"]]), dt=dt, adjoint=adj)
+        return jnp.sum(qs ** 2) / 1e-12
+
+    np.testing.assert_allclose(jax.grad(batch_loss)(zero, adjoint),
+                               jax.grad(batch_loss)(zero, ss.CheckpointedScan()), rtol=1e-9)
+
+
 def test_zba_has_no_influence_in_pure_stick(setup):
     # A 15 V scan never strains the contact past z_ba: the gradient says, exactly,
     # that such a recording cannot identify z_ba (and nothing is NaN).
