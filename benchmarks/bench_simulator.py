@@ -895,7 +895,8 @@ def print_report(res: dict) -> None:
     dl = {"forward": "forward q(θ)", "jacfwd_phys": "jacfwd, 9 physical parameters",
           "jacfwd_phys_pi": "jacfwd, 9 physical + 35 PI weights",
           "grad_phys": "grad of sum((q - target)^2), 9 physical",
-          "grad_phys_forward_mode": "same gradient by jacfwd(loss) (info, forward mode)"}
+          "grad_phys_forward_mode": "same gradient by jacfwd(loss) (info, forward mode)",
+          "grad_phys_forward_sensitivities": "grad, adjoint=ForwardSensitivities()"}
     for key, label in dl.items():
         entry = d[key]
         print(f"{label:54s} {fmt_s(entry['median_s']):>9s} {fmt_s(entry['min_s']):>9s} "
