@@ -32,6 +32,13 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
 
+def value_and_jacfwd(fn: Callable, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(fn(x), ∂fn/∂x)`` for a 1-D ``x`` from one vmapped forward-mode pass: the primal
+    runs once, the Jacobian's last axis runs over ``x``."""
+    basis = jnp.eye(x.size, dtype=x.dtype)
+    return jax.vmap(lambda t: jax.jvp(fn, (x,), (t,)), out_axes=(None, -1))(basis)
+
+
 class AbstractAdjoint(eqx.Module):
     """How a simulation is differentiated; see the module docstring."""
 
@@ -92,9 +99,7 @@ class ForwardSensitivities(AbstractAdjoint):
                     offset += size
                 return fn(treedef.unflatten(new), voltage)
 
-            basis = jnp.eye(n, dtype=x0.dtype)
-            value, jac = jax.vmap(lambda t: jax.jvp(of_live, (x0,), (t,)),
-                                  out_axes=(None, -1))(basis)
+            value, jac = value_and_jacfwd(of_live, x0)
             t_x = jnp.concatenate([jnp.ravel(t_leaves[i]) for i in live])
             t_out = jac @ t_x
             if voltage_live:

@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from ..adjoint import value_and_jacfwd
+
 
 @dataclass(frozen=True)
 class SolveResult:
@@ -64,9 +66,7 @@ def dense_jacobian(fn: Callable):
 
     @jax.jit
     def value_and_jacobian(theta, args):
-        basis = jnp.eye(theta.size, dtype=theta.dtype)
-        return jax.vmap(lambda t: jax.jvp(lambda th: fn(th, args), (theta,), (t,)),
-                        out_axes=(None, -1))(basis)
+        return value_and_jacfwd(lambda th: fn(th, args), theta)
 
     @jax.custom_jvp
     def wrapped(theta, args):
