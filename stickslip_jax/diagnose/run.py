@@ -77,6 +77,19 @@ WRONG_SIGN_SHARE = 0.2
 |score| reaches this share of the round's largest."""
 INDISTINGUISHABLE = 0.9
 """An entry whose ΔBIC reaches this share of the best one's is indistinguishable."""
+COMPETITIVE_SHARE = 0.25
+"""Below the leader, an entry is refitted with the baseline freed only when its rank
+value (the larger of score and sizing drop) reaches this share of the leader's; the
+others get their refit only if the leader's fails. A refit frees every baseline
+parameter and costs tens of seconds; an entry whose sizing removed a quarter of what
+the leader's did has not come near it in any set seen (set_03: 15 % and 11 %)."""
+LATER_SCORE_SHARE = 0.05
+"""After an acceptance, an entry is sized in the next round only when its |score|
+reaches this share of the (e/σ)² still in excess of the noise. The excess an accepted
+entry leaves is mostly the difference between its form and the true one, which no
+other entry explains: each scores a small share of it (set_03 after the drive
+bandwidth: 1.5 % at most), while a second effect of comparable size scores like a
+first one did (14-50 % of the excess in round one)."""
 
 
 class WhitenedResiduals(eqx.Module):
@@ -459,6 +472,16 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             r for r in order[size_at_most:]
             if (r.score < 0 and abs(r.score) >= WRONG_SIGN_SHARE * best_score)
             or r.name in has_seeds]
+        if accepted:
+            floor = LATER_SCORE_SHARE * max(rss - n_obs, 0.0)
+            for r in chosen:
+                if abs(r.score) < floor:
+                    r.note = (f"not sized: |score| {abs(r.score):.3g} below "
+                              f"{100 * LATER_SCORE_SHARE:.0f} % of the excess left")
+            chosen = [r for r in chosen if abs(r.score) >= floor]
+            if not chosen:
+                say(f"[score] no entry scores {100 * LATER_SCORE_SHARE:.0f} % of the "
+                    f"excess the accepted entries left ({rss - n_obs:.3g}): stop")
         for res in chosen:
             if abs(res.score) < SCORE_MIN:
                 continue
@@ -524,14 +547,23 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             res.chi2_after = rss_new / n_obs
             res.wall_s = time.perf_counter() - t0
 
-        for res in ranked[:top]:
+        lead = max(ranked[0].score, ranked[0].size_drop) if ranked else 0.0
+        for i, res in enumerate(ranked[:top]):
+            if i and max(res.score, res.size_drop) < COMPETITIVE_SHARE * lead:
+                continue
             refit(res)
-        if not any(_explains(r) and r.criterion_delta < BIC_MIN for r in ranked[:top]):
+        if not any(r.refitted and _explains(r) and r.criterion_delta < BIC_MIN
+                   for r in ranked):
             # The first-order ranking misleads when the baseline absorbed much of a
             # large effect (seen: a slew-limited drive ranked below a constant load
             # that mimics part of it): the other sized entries get their refit too.
-            for res in ranked[top:]:
-                refit(res)
+            for res in ranked:
+                if not res.refitted and not res.note:
+                    refit(res)
+        for res in ranked:
+            if not res.refitted and not res.note:
+                res.note = (f"not refitted: ranked below {100 * COMPETITIVE_SHARE:.0f} % "
+                            f"of the leader, and a higher-ranked refit explained the residual")
         refitted = sorted([r for r in results if r.refitted], key=lambda r: r.criterion_delta)
         rounds.append(results)
         if not refitted:
