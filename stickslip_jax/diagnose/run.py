@@ -18,10 +18,12 @@
    can turn the first-order sign around): each starts from the Gauss-Newton step of
    the score test, the entry at its strength and the baseline moved by its share of
    the step (the best of 1, 1/2, 1/4, 1/8 of it), and its own parameters are fitted
-   with the baseline held. Then refit the ``top`` by the larger of ``S`` and the
-   sizing's drop (and, if none of them explains the residual, the other sized entries
-   too: the first-order ranking misleads when the baseline absorbed a large effect)
-   from the current optimum,
+   with the baseline held. After an acceptance, only entries whose ``|S|`` reaches
+   :data:`LATER_SCORE_SHARE` of the excess left are sized. Then refit the ``top`` by
+   the larger of ``S`` and the sizing's drop, those below the leader only when within
+   :data:`COMPETITIVE_SHARE` of it (and, if none of them explains the residual, every
+   other sized entry too: the first-order ranking misleads when the baseline absorbed
+   a large effect) from the current optimum,
    freeing the entry's parameters and every baseline parameter, and compare with the
    Bayesian information criterion of the whitened residual (known noise level):
    ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N samples). The best entry is
@@ -323,6 +325,34 @@ def _best_seed(problem: _Problem, act: Actuator, base_names: list[str], cand: Ca
     return best
 
 
+def _rank_value(r: CandidateResult) -> float:
+    """What the refit order goes by: the larger of the score and the sizing's drop."""
+    return max(r.score, r.size_drop)
+
+
+def _first_refits(ranked: list[CandidateResult], top: int) -> list[CandidateResult]:
+    """The entries refitted first: the leader of ``ranked`` (best first) and, among the
+    next ``top − 1``, those whose rank value reaches :data:`COMPETITIVE_SHARE` of its."""
+    if not ranked:
+        return []
+    lead = _rank_value(ranked[0])
+    return [ranked[0]] + [r for r in ranked[1:top]
+                          if _rank_value(r) >= COMPETITIVE_SHARE * lead]
+
+
+def _worth_sizing_after_acceptance(chosen: list[CandidateResult],
+                                   excess: float) -> list[CandidateResult]:
+    """Entries of ``chosen`` whose |score| reaches :data:`LATER_SCORE_SHARE` of
+    ``excess`` (the (e/σ)² over the noise left by the accepted entries); the others
+    get a note saying why they were not sized."""
+    floor = LATER_SCORE_SHARE * max(excess, 0.0)
+    for r in chosen:
+        if abs(r.score) < floor:
+            r.note = (f"not sized: |score| {abs(r.score):.3g} below "
+                      f"{100 * LATER_SCORE_SHARE:.0f} % of the excess left ({excess:.3g})")
+    return [r for r in chosen if abs(r.score) >= floor]
+
+
 def _explains(r: CandidateResult) -> bool:
     """The refit removes :data:`EXPLAINED_MIN` of the excess or reaches the noise."""
     return (bool(np.isfinite(r.explained) and r.explained >= EXPLAINED_MIN)
@@ -473,12 +503,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             if (r.score < 0 and abs(r.score) >= WRONG_SIGN_SHARE * best_score)
             or r.name in has_seeds]
         if accepted:
-            floor = LATER_SCORE_SHARE * max(rss - n_obs, 0.0)
-            for r in chosen:
-                if abs(r.score) < floor:
-                    r.note = (f"not sized: |score| {abs(r.score):.3g} below "
-                              f"{100 * LATER_SCORE_SHARE:.0f} % of the excess left")
-            chosen = [r for r in chosen if abs(r.score) >= floor]
+            chosen = _worth_sizing_after_acceptance(chosen, rss - n_obs)
             if not chosen:
                 say(f"[score] no entry scores {100 * LATER_SCORE_SHARE:.0f} % of the "
                     f"excess the accepted entries left ({rss - n_obs:.3g}): stop")
@@ -547,10 +572,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             res.chi2_after = rss_new / n_obs
             res.wall_s = time.perf_counter() - t0
 
-        lead = max(ranked[0].score, ranked[0].size_drop) if ranked else 0.0
-        for i, res in enumerate(ranked[:top]):
-            if i and max(res.score, res.size_drop) < COMPETITIVE_SHARE * lead:
-                continue
+        for res in _first_refits(ranked, top):
             refit(res)
         if not any(r.refitted and _explains(r) and r.criterion_delta < BIC_MIN
                    for r in ranked):

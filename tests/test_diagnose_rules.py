@@ -1,0 +1,51 @@
+"""The diagnosis's refit and sizing rules, on the numbers of the full set_03 run.
+
+(Whole diagnoses are in test_diagnose.py; these rules decide where their time goes.)
+"""
+
+from stickslip_jax.diagnose.run import (
+    COMPETITIVE_SHARE,
+    LATER_SCORE_SHARE,
+    CandidateResult,
+    _first_refits,
+    _worth_sizing_after_acceptance,
+)
+
+
+def _ranked(*values):
+    return [CandidateResult(name, score=score, size_drop=drop) for name, score, drop in values]
+
+
+def test_only_competitive_entries_are_refitted_beside_the_leader():
+    # set_03, round 1 (whitened RSS): the amplifier's sizing removed 293 374, the
+    # next two 15 % and 11 % of that.
+    ranked = _ranked(("drive_bandwidth", 5.61e4, 293_374.0),
+                     ("rate_dependent_hysteresis", 2.5e4, 44_180.0),
+                     ("structural_mode", 6.9e3, 32_960.0))
+    assert [r.name for r in _first_refits(ranked, top=3)] == ["drive_bandwidth"]
+    # One within the share is refitted; ``top`` still caps the count.
+    ranked[2].size_drop = COMPETITIVE_SHARE * 293_374.0 + 1.0
+    assert [r.name for r in _first_refits(ranked, top=3)] == ["drive_bandwidth",
+                                                            "structural_mode"]
+    assert [r.name for r in _first_refits(ranked, top=2)] == ["drive_bandwidth"]
+    # The score counts as well as the sizing drop.
+    ranked[1].score = 0.3 * 293_374.0
+    assert [r.name for r in _first_refits(ranked, top=2)] == [
+        "drive_bandwidth", "rate_dependent_hysteresis"]
+    assert _first_refits([], top=3) == []
+
+
+def test_after_an_acceptance_only_entries_scoring_a_share_of_the_excess_are_sized():
+    # set_03, round 2: 37 876 of (e/σ)² left over the noise; the best |score| 965.
+    chosen = _ranked(("structural_mode", 557.0, 0.0), ("sensor_delay", -965.0, 0.0),
+                     ("stribeck", -415.0, 0.0))
+    assert _worth_sizing_after_acceptance(chosen, 37_876.0) == []
+    assert all("not sized" in r.note for r in chosen)
+    # A second effect scoring like a first one did is sized, whatever its sign.
+    big = _ranked(("creep", 0.3 * 37_876.0, 0.0), ("sensor_delay", -0.06 * 37_876.0, 0.0),
+                  ("stribeck", (LATER_SCORE_SHARE - 0.01) * 37_876.0, 0.0))
+    kept = _worth_sizing_after_acceptance(big, 37_876.0)
+    assert [r.name for r in kept] == ["creep", "sensor_delay"]
+    assert big[2].note and not big[0].note
+    # Nothing left over the noise: the floor is zero and every entry is kept.
+    assert len(_worth_sizing_after_acceptance(_ranked(("creep", 1.0, 0.0)), -5.0)) == 1
