@@ -85,13 +85,14 @@ value (the larger of score and sizing drop) reaches this share of the leader's; 
 others get their refit only if the leader's fails. A refit frees every baseline
 parameter and costs tens of seconds; an entry whose sizing removed a quarter of what
 the leader's did has not come near it in any set seen (set_03: 15 % and 11 %)."""
-LATER_SCORE_SHARE = 0.05
+LATER_SCORE_SHARE = 0.10
 """After an acceptance, an entry is sized in the next round only when its |score|
 reaches this share of the (e/σ)² still in excess of the noise. The excess an accepted
 entry leaves is mostly the difference between its form and the true one, which no
 other entry explains: each scores a small share of it (set_03 after the drive
-bandwidth: 1.5 % at most), while a second effect of comparable size scores like a
-first one did (14-50 % of the excess in round one)."""
+bandwidth: 5.1 % at most, and that entry's refit was rejected after 173 s), while a
+second effect of comparable size scores like a first one did (27 % and 99 % of the
+excess in round one of set_03 and set_01)."""
 
 
 class WhitenedResiduals(eqx.Module):
@@ -332,7 +333,10 @@ def _rank_value(r: CandidateResult) -> float:
 
 def _first_refits(ranked: list[CandidateResult], top: int) -> list[CandidateResult]:
     """The entries refitted first: the leader of ``ranked`` (best first) and, among the
-    next ``top − 1``, those whose rank value reaches :data:`COMPETITIVE_SHARE` of its."""
+    next ``top − 1``, those whose rank value reaches :data:`COMPETITIVE_SHARE` of its.
+    An entry with the wrong first-order sign whose sizing did not lower the cost either
+    (rank value ≤ 0) has shown nothing a refit could build on: never first."""
+    ranked = [r for r in ranked if _rank_value(r) > 0]
     if not ranked:
         return []
     lead = _rank_value(ranked[0])
