@@ -547,7 +547,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             res.size_drop = rss - rss_size
             sized[res.name] = (start, specs)
         ranked = sorted([r for r in results if r.name in sized],
-                        key=lambda r: -max(r.score, r.size_drop))
+                        key=lambda r: -_rank_value(r))
         excess = max(rss - n_obs, 1e-9)
 
         def refit(res, pool=pool, sized=sized, rss=rss, nrmse_now=nrmse_now, excess=excess):
