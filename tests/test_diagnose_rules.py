@@ -7,6 +7,7 @@ from stickslip_jax.diagnose.run import (
     COMPETITIVE_SHARE,
     LATER_SCORE_SHARE,
     CandidateResult,
+    _fallback_refits,
     _first_refits,
     _worth_sizing_after_acceptance,
 )
@@ -38,6 +39,22 @@ def test_only_competitive_entries_are_refitted_beside_the_leader():
     assert _first_refits(_ranked(("sensor_delay", -965.0, -2074.0)), top=3) == []
 
 
+def test_below_the_leader_a_sizing_that_raised_the_cost_waits_for_the_fallback():
+    # set_09 (creep hidden), round 1, baseline whitened RSS 1.4641e6.
+    base = 1.4641e6
+    ranked = _ranked(("creep", 1.17e6, base - 4.3615e5),
+                     ("rate_dependent_hysteresis", 5.32e5, base - 9.1794e5),
+                     ("drive_bandwidth", 3.82e5, base - 5.5022e6))
+    assert [r.name for r in _first_refits(ranked, top=3)] == ["creep",
+                                                            "rate_dependent_hysteresis"]
+    # The leader is refitted whatever its sizing did.
+    assert [r.name for r in _first_refits(ranked[2:], top=3)] == ["drive_bandwidth"]
+    # If the first refits explain nothing, the fallback takes it.
+    for r in ranked[:2]:
+        r.refitted = True
+    assert [r.name for r in _fallback_refits(ranked)] == ["drive_bandwidth"]
+
+
 def test_after_an_acceptance_only_entries_scoring_a_share_of_the_excess_are_sized():
     # set_03, round 2: 18 938 of (e/σ)² left over the noise; the best |score| 965.
     chosen = _ranked(("structural_mode", 557.0, 0.0), ("sensor_delay", -965.0, 0.0),
@@ -53,3 +70,27 @@ def test_after_an_acceptance_only_entries_scoring_a_share_of_the_excess_are_size
     assert big[2].note and not big[0].note
     # Nothing left over the noise: the floor is zero and every entry is kept.
     assert len(_worth_sizing_after_acceptance(_ranked(("creep", 1.0, 0.0)), -5.0)) == 1
+
+
+def test_the_fallback_refits_every_other_sized_entry_but_those_pointing_the_wrong_way():
+    # set_10 (an uncatalogued effect), baseline whitened RSS 5.9793e7: sensor_drift
+    # and structural_mode were refitted first and explained nothing.
+    base = 5.9793e7
+    ranked = _ranked(("sensor_drift", 1.26e6, base - 5.8929e7),
+                     ("stribeck", 6.65e5, base - 5.9916e7),
+                     ("structural_mode", 6.34e5, base - 5.9054e7),
+                     ("rate_dependent_hysteresis", 4.76e5, base - 5.9904e7),
+                     ("contact_damping", 2.99e5, base - 5.9674e7),
+                     ("drive_bandwidth", -6.91e4, base - 1.1545e8))
+    for r in ranked:
+        r.refitted = r.name in ("sensor_drift", "structural_mode")
+    again = _fallback_refits(ranked)
+    # A positive score whose sizing did not lower the cost still gets its refit.
+    assert [r.name for r in again] == ["stribeck", "rate_dependent_hysteresis",
+                                      "contact_damping"]
+    assert "wrong first-order sign" in ranked[-1].note
+    # Entries already refitted or set aside with a note are not refitted again.
+    assert _fallback_refits(ranked) == again
+    ranked[1].note = "refit not possible"
+    assert [r.name for r in _fallback_refits(ranked)] == ["rate_dependent_hysteresis",
+                                                          "contact_damping"]
