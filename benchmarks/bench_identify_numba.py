@@ -11,12 +11,16 @@ contract) run in parallel over the recordings (prange, both cores). Parameters i
 log space (positive); residual per recording: simulated minus measured position with
 its mean removed, over the measurement's peak-to-peak (the time-domain part of this
 package's residual). The numba compile is timed separately and left out of the fit's
-wall time. Side by side in the same run: `stickslip identify` end to end on the same
-start, compilation included (bench_identify.py's measurement). Reported: wall times,
-evaluations, the mean NRMSE reached and the parameter errors against the truth.
-scipy's run is timed to the first evaluation whose cost is within 5 % of the truth's
-own cost (the noise floor), within a budget of --max-evaluations simulator runs.
-Target (issue #3): this package at least 3x faster than (b).
+wall time. Side by side in the same run, first: `stickslip identify` end to end on
+the same start, compilation included (bench_identify.py's measurement); its fitted
+parameters are then scored with this script's residual, and that cost is the "same
+final cost" scipy is timed to (the first evaluation at or below it, within a budget of
+--max-evaluations simulator runs; its whole run, a lower bound, if it never gets
+there). Also reported: scipy's time to the noise floor (the truth's own cost + 5 %),
+its evaluations, the mean NRMSE it reached and its parameter errors against the truth,
+and the speed-up over this package's steps' solves alone (fit.json's wall seconds:
+compilation included; start-up, loading, uncertainty and figures left out).
+Target (issue #3): this package, end to end, at least 3x faster than (b).
 """
 
 import argparse
@@ -69,7 +73,6 @@ class NumbaProblem:
         self.dt = recordings[0].dt
         p = ss.params_from_actuator(start)
         self.fixed = p
-        self.r = np.asarray(p["pi_thresholds"], float)
         self.theta0 = np.log(np.r_[[p[k] for k in SCALARS], p["pi_weights"]])
 
     def physical(self, theta):
@@ -78,21 +81,32 @@ class NumbaProblem:
 
     def simulate(self, theta):
         s, w = self.physical(theta)
-        p = self.fixed
-        prms = np.array([(s["Mp"], s["Dp"], s["Kp"], p["Kact2"] * p["N"], p["Ms"], s["Ds"],
-                          p["F_ext"], p["k_load"], s["rho0"], p["rho1"], p["rho2"],
-                          s["z_ba_backward"] if back else s["z_ba_forward"], p["zba_ratio"])
+        return self.simulate_params({**self.fixed, **s, "pi_weights": w})
+
+    def simulate_params(self, p: dict):
+        """Every recording simulated from a MODEL.md parameter dict (its own PI)."""
+        prms = np.array([(p["Mp"], p["Dp"], p["Kp"], p["Kact2"] * p["N"], p["Ms"], p["Ds"],
+                          p["F_ext"], p["k_load"], p["rho0"], p["rho1"], p["rho2"],
+                          p["z_ba_backward"] if back else p["z_ba_forward"], p["zba_ratio"])
                          for back in self.backward])
         return simulate_all(self.volts, self.lengths, self.dt, DEFAULT_SUBSTEPS, prms,
-                            self.r, w)
+                            np.asarray(p["pi_thresholds"], float),
+                            np.asarray(p["pi_weights"], float))
 
-    def residuals(self, theta):
-        q = self.simulate(theta)
+    def residuals_of(self, q):
         parts = []
         for b, n in enumerate(self.lengths):
             d = q[b, :n] - self.meas[b, :n]
             parts.append((d - d.mean()) / self.scale[b])
         return np.concatenate(parts)
+
+    def cost_of(self, params: dict) -> float:
+        """Sum of squared residuals of a parameter dict (e.g. another fit's result)."""
+        r = self.residuals_of(self.simulate_params({**self.fixed, **params}))
+        return float(r @ r)
+
+    def residuals(self, theta):
+        return self.residuals_of(self.simulate(theta))
 
     def nrmse(self, theta):
         q = self.simulate(theta)
@@ -119,10 +133,20 @@ def main(argv=None) -> int:
     eval_s = time.perf_counter() - t0
     print(f"numba: compile {compile_s:.1f} s, one evaluation of {len(recs)} recordings "
           f"{eval_s:.3f} s; start NRMSE {prob.nrmse(prob.theta0):.5f}", flush=True)
-    # The target: the cost of the truth itself (the noise floor), +5 %.
-    theta_truth = np.log(np.r_[[truth[k] for k in SCALARS], truth["pi_weights"]])
-    r_truth = prob.residuals(theta_truth)
-    target = 1.05 * float(r_truth @ r_truth)
+    # This package first: its final cost, in this residual, is the cost scipy must reach.
+    ours = None
+    if not args.skip_end_to_end:
+        ours = end_to_end()
+        fitted = ours.pop("params")
+        if fitted is not None:
+            ours["cost_numba_residual"] = prob.cost_of(fitted)
+        print(f"stickslip identify end to end (compilation included): {ours['wall_s']:.1f} s, "
+              f"its steps' solves {ours['steps_wall_s']:.1f} s (exit {ours['exit_code']}); "
+              f"{ours['summary'][-1] if ours['summary'] else ''}", flush=True)
+    # The noise floor: the cost of the truth itself, +5 % (information).
+    truth_cost = prob.cost_of(truth)
+    floor_target = 1.05 * truth_cost
+    same_cost = ours.get("cost_numba_residual") if ours else None
     calls: list[tuple[float, float]] = []
     best = {"cost": np.inf, "theta": prob.theta0}
 
@@ -147,32 +171,44 @@ def main(argv=None) -> int:
     except Budget:
         status, message = -10, f"stopped at the budget of {args.max_evaluations} evaluations"
     wall_b = time.perf_counter() - t0
-    reached = next((t for t, c in calls if c <= target), None)
+
+    def time_to(target):
+        return None if target is None else next((t for t, c in calls if c <= target), None)
+
     x_best = best["theta"]
     s, w = prob.physical(x_best)
     errors = {k: float(s[k] / truth[k] - 1) for k in SCALARS}
     result = {
         "cpus": os.cpu_count(), "recordings": len(recs), "parameters": int(prob.theta0.size),
         "residuals": int(r0.size), "numba_compile_s": compile_s, "evaluation_s": eval_s,
+        "truth_cost": truth_cost,
         "scipy_over_numba": {"wall_s": wall_b, "evaluations": len(calls), "status": status,
                              "message": message, "cost_best": best["cost"],
-                             "target_cost": target, "time_to_target_s": reached,
+                             "noise_floor_target_cost": floor_target,
+                             "time_to_noise_floor_s": time_to(floor_target),
+                             "same_cost_target": same_cost,
+                             "time_to_same_cost_s": time_to(same_cost),
                              "nrmse": prob.nrmse(x_best), "relative_errors": errors},
     }
+    sp = result["scipy_over_numba"]
     print(f"scipy trf 2-point over numba: {wall_b:.1f} s, {len(calls)} evaluations, {message}; "
-          f"time to the noise-floor cost (truth's cost +5 %): {reached}; NRMSE "
-          f"{result['scipy_over_numba']['nrmse']:.5f}")
+          f"time to the noise-floor cost (truth's +5 %): {sp['time_to_noise_floor_s']}; "
+          f"NRMSE {sp['nrmse']:.5f}")
     print("  errors: " + ", ".join(f"{k} {100 * v:+.2f} %" for k, v in errors.items()))
-    if not args.skip_end_to_end:
-        e = end_to_end()
-        result["stickslip_identify_end_to_end"] = e
-        ratio = (reached if reached is not None else wall_b) / e["wall_s"]
-        result["speedup_vs_scipy_numba"] = ratio
-        print(f"stickslip identify end to end (compilation included): {e['wall_s']:.1f} s "
-              f"(exit {e['exit_code']}); {e['summary'][-1] if e['summary'] else ''}")
-        print(f"speed-up over scipy+numba (its time to the noise floor, or its whole run if "
-              f"it never got there): {ratio:.2f} (target ≥ 3: "
-              f"{'PASS' if ratio >= 3 else 'MISS'})")
+    if ours is not None:
+        result["stickslip_identify_end_to_end"] = ours
+        reached = sp["time_to_same_cost_s"]
+        scipy_s = reached if reached is not None else wall_b
+        result["speedup_vs_scipy_numba"] = scipy_s / ours["wall_s"]
+        result["speedup_vs_scipy_numba_fit_only"] = scipy_s / ours["steps_wall_s"]
+        result["speedup_is_lower_bound"] = reached is None
+        print(f"same final cost: this package {same_cost:.6e} (truth {truth_cost:.6e}); "
+              f"scipy first reached it after {reached} s" +
+              (" (never: its whole run is used, a lower bound)" if reached is None else ""))
+        print(f"speed-up over scipy+numba at the same cost: end to end "
+              f"{result['speedup_vs_scipy_numba']:.2f} (target ≥ 3: "
+              f"{'PASS' if result['speedup_vs_scipy_numba'] >= 3 else 'MISS'}); "
+              f"fit steps only {result['speedup_vs_scipy_numba_fit_only']:.2f}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=1, default=str) + "\n")
