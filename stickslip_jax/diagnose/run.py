@@ -394,7 +394,8 @@ def _learned_scales(problem: _Problem) -> tuple[float, ...]:
 
 def _fit_learned(problem: _Problem, act: Actuator, base_names, rss0: float,
                  max_steps: int) -> dict:
-    """Sparse regression of a force correction (fit, drop |t| < 4, refit)."""
+    """Sparse regression of a force correction (fit, drop |t| < 4, refit if any was
+    dropped)."""
     scales = _learned_scales(problem)
     keep = list(range(len(LEARNED_FEATURES)))
     fitted, rss = act, rss0
@@ -420,6 +421,8 @@ def _fit_learned(problem: _Problem, act: Actuator, base_names, rss0: float,
         keep = [i for i in range(len(c)) if abs(t[i]) >= 4.0]
         if not keep:
             return {"features": [], "rss": rss, "actuator": act, "t": t.tolist()}
+        if len(keep) == len(c):
+            break  # nothing dropped: the refit would repeat this fit exactly
         # Refit with the others held at zero: a library with only the kept columns.
         scales = tuple(s if i in keep else np.inf for i, s in enumerate(scales))
     coef = np.asarray(fitted.extensions[-1].coef)
