@@ -341,7 +341,7 @@ def _first_refits(ranked: list[CandidateResult], top: int) -> list[CandidateResu
     explained less than the leader's). An entry with the wrong first-order sign whose
     sizing did not lower the cost either (rank value ≤ 0) has shown nothing a refit
     could build on: never first. The others wait for :func:`_fallback_refits`."""
-    ranked = [r for r in ranked if _rank_value(r) > 0]
+    ranked = [r for r in ranked if _shows_promise(r)]
     if not ranked:
         return []
     lead = _rank_value(ranked[0])
@@ -349,22 +349,39 @@ def _first_refits(ranked: list[CandidateResult], top: int) -> list[CandidateResu
                           if _rank_value(r) >= COMPETITIVE_SHARE * lead and r.size_drop >= 0]
 
 
+_NO_PROMISE = ("not refitted: wrong first-order sign, and its sizing raised the cost "
+               "over the baseline's")
+
+
+def _shows_promise(r: CandidateResult) -> bool:
+    """False for an entry whose first-order sign is wrong and whose sizing raised the
+    cost (rank value ≤ 0): no refit, first or fallback, is spent on it."""
+    return _rank_value(r) > 0
+
+
 def _fallback_refits(ranked: list[CandidateResult]) -> list[CandidateResult]:
     """The entries refitted when no first refit explained the residual: every sized
-    entry not refitted yet, except those with rank value ≤ 0 (wrong first-order sign
-    and a sizing that raised the cost), which get a note saying so. (set_10, an
-    uncatalogued effect: the seeded amplifier, score −6.9e4, sized to twice the
-    baseline's cost, took a 210 s refit that ended above the baseline.)"""
-    out = []
-    for r in ranked:
-        if r.refitted or r.note:
-            continue
-        if _rank_value(r) > 0:
-            out.append(r)
-        else:
-            r.note = ("not refitted: wrong first-order sign, and its sizing raised the "
-                      "cost over the baseline's")
-    return out
+    entry not refitted yet that :func:`_shows_promise`; the others get a note saying
+    why not. (set_10, an uncatalogued effect: the seeded amplifier, score −6.9e4, sized
+    to twice the baseline's cost, took a 210 s refit that ended above the baseline.)"""
+    waiting = [r for r in ranked if not r.refitted and not r.note]
+    for r in waiting:
+        if not _shows_promise(r):
+            r.note = _NO_PROMISE
+    return [r for r in waiting if not r.note]
+
+
+def _why_not_refitted(r: CandidateResult, ranked: list[CandidateResult], top: int) -> str:
+    """The note of a sized entry that got no refit (``ranked``: best first)."""
+    if not _shows_promise(r):
+        return _NO_PROMISE
+    if r.size_drop < 0:
+        why = "its sizing raised the cost over the baseline's"
+    elif _rank_value(r) < COMPETITIVE_SHARE * _rank_value(ranked[0]):
+        why = f"ranked below {100 * COMPETITIVE_SHARE:.0f} % of the leader"
+    else:
+        why = f"ranked below the top {top}"
+    return f"not refitted: {why}, and a higher-ranked refit explained the residual"
 
 
 def _worth_sizing_after_acceptance(chosen: list[CandidateResult],
@@ -613,8 +630,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                 refit(res)
         for res in ranked:
             if not res.refitted and not res.note:
-                res.note = (f"not refitted: ranked below {100 * COMPETITIVE_SHARE:.0f} % "
-                            f"of the leader, and a higher-ranked refit explained the residual")
+                res.note = _why_not_refitted(res, ranked, top)
         refitted = sorted([r for r in results if r.refitted], key=lambda r: r.criterion_delta)
         rounds.append(results)
         if not refitted:
