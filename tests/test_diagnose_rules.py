@@ -1,4 +1,4 @@
-"""The diagnosis's refit and sizing rules, on the numbers of the full set_03 run.
+"""The diagnosis's refit and sizing rules, on the numbers of full concealed-set runs.
 
 (Whole diagnoses are in test_diagnose.py; these rules decide where their time goes.)
 """
@@ -6,6 +6,8 @@
 from stickslip_jax.diagnose.run import (
     COMPETITIVE_SHARE,
     LATER_SCORE_SHARE,
+    LEADER_ALONE_LEAD,
+    LEADER_ALONE_SHARE,
     CandidateResult,
     _fallback_refits,
     _first_refits,
@@ -113,3 +115,29 @@ def test_an_entry_without_a_refit_is_told_why():
     assert "wrong first-order sign" in _why_not_refitted(ranked[4], ranked, 3)
     assert all("explained the residual" in _why_not_refitted(r, ranked, 3)
                for r in ranked[1:4])
+
+
+def test_a_leader_whose_sizing_reached_the_noise_is_refitted_alone():
+    # set_01 (rate-dependent hysteresis hidden), round 1: baseline whitened RSS
+    # 108 360 over 24 000 samples; the leader's sizing left 26 001, creep's 55 087,
+    # the mode's 80 188. Refitted, they explained 101 %, 76 % and 64 %.
+    base, n_obs = 108_360.0, 24_000.0
+    excess = base - n_obs
+    ranked = _ranked(("rate_dependent_hysteresis", 8.33e4, base - 26_001.0),
+                     ("creep", 5.06e4, base - 55_087.0),
+                     ("structural_mode", 5.07e3, base - 80_188.0))
+    assert [r.name for r in _first_refits(ranked, top=3)] == [
+        "rate_dependent_hysteresis", "creep", "structural_mode"]
+    assert [r.name for r in _first_refits(ranked, top=3, excess=excess)] == [
+        "rate_dependent_hysteresis"]
+    note = _why_not_refitted(ranked[1], ranked, 3, excess)
+    assert "sizing alone removed 98 % of the excess, this entry's 63 %" in note
+    # A competitor whose sizing came within LEADER_ALONE_LEAD of the leader's keeps
+    # its refit (set_12's contact damping at 52 % beside stribeck at 90 % would not).
+    ranked[1].size_drop = LEADER_ALONE_LEAD * ranked[0].size_drop
+    assert [r.name for r in _first_refits(ranked, top=3, excess=excess)] == [
+        "rate_dependent_hysteresis", "creep", "structural_mode"]
+    # A leader short of LEADER_ALONE_SHARE (set_09: creep sized to 71 %) has company.
+    ranked[1].size_drop = 0.3 * excess
+    ranked[0].size_drop = (LEADER_ALONE_SHARE - 0.01) * excess
+    assert len(_first_refits(ranked, top=3, excess=excess)) == 3
