@@ -183,12 +183,12 @@ def joint_comparison(max_nfev: int) -> dict:
     fn = jax.jit(lambda th: res(th))
     theta0 = pmap.zeros()
     fn(theta0).block_until_ready()  # compile the residual before any timer
-    # (a) this package
+    # this package
     t0 = time.perf_counter()
     ours = solve_least_squares(res, theta0)
     wall_a = time.perf_counter() - t0
     target = ours.cost_end * (1 + 1e-6)
-    # (b) scipy TRF with 2-point finite differences over the same residuals
+    # scipy TRF with 2-point finite differences over the same residuals
     rec = Recorder(fn)
     rec.t0 = time.perf_counter()
     sp = scipy.optimize.least_squares(rec, np.asarray(theta0), method="trf", jac="2-point",
