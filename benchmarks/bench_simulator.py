@@ -59,12 +59,13 @@ What is timed
    z_ba_backward, zba_ratio), put into the Actuator with ``eqx.tree_at``:
    ``jax.jacfwd`` of the trace (T x 9), again with the 35 PI weights added (T x 44),
    and ``jax.grad`` of sum((q − q_target)²), q_target being the trace at θ·1.01,
-   with the default adjoint (reverse mode through the checkpointed scan) and with
-   ``adjoint=ForwardSensitivities()`` (the gradient as Jᵀ·c from forward mode).
+   with the default adjoint (``ForwardSensitivities``: the gradient as Jᵀ·c from
+   forward sensitivities) and with ``adjoint=CheckpointedScan()`` (plain reverse mode
+   through the checkpointed scan).
    All jitted, compiled ahead of time (compile timed), timed interleaved with the
    plain forward θ → q, and reported as multiples of it. (z_ba_backward has a zero
    column on a forward drive; it still costs a tangent.)
-6. Memory of the reverse-mode gradient over a 10 s trace, in a fresh subprocess:
+6. Memory of the gradient (default adjoint) over a 10 s trace, in a fresh subprocess:
    the compiled executable's ``memory_analysis()`` (temp, argument, output sizes)
    and the process peak RSS increase (``resource.getrusage``) from before compiling
    the gradient to after running it; also the run alone (peak reset through
@@ -106,7 +107,7 @@ import scipy  # noqa: E402
 from numba import njit, prange  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from stickslip_jax.adjoint import ForwardSensitivities  # noqa: E402
+from stickslip_jax.adjoint import CheckpointedScan  # noqa: E402
 from stickslip_jax.model.profiles import lu2015_slc1720  # noqa: E402
 from stickslip_jax.signals import sawtooth  # noqa: E402
 from stickslip_jax.simulate import DEFAULT_SUBSTEPS, simulate, simulate_batch  # noqa: E402
@@ -449,7 +450,7 @@ def _proc_status_mb(key: str) -> float | None:
 # 6. memory of the gradient, in a fresh process
 # ---------------------------------------------------------------------------------
 def memory_child(duration_s: float, substeps: int) -> dict:
-    """Compile and run the reverse-mode gradient over ``duration_s`` [s]; memory figures.
+    """Compile and run the gradient (default adjoint) over ``duration_s`` [s]; memory figures.
 
     getrusage's ``ru_maxrss`` is the peak over the process's life (it also inherits
     the spawning process's RSS at ``exec``, which is why the parent starts this child
@@ -697,14 +698,14 @@ def run(args) -> dict:
     q_all, theta_all = parameter_function(actuator, substeps, with_pi=True)
     target = jax.block_until_ready(jax.jit(q_phys)(theta_phys * 1.01, u))
 
-    q_sens, _ = parameter_function(actuator, substeps, with_pi=False,
-                                   adjoint=ForwardSensitivities())
+    q_rev, _ = parameter_function(actuator, substeps, with_pi=False,
+                                  adjoint=CheckpointedScan())
 
     def loss(theta, u, target):
         return jnp.sum((q_phys(theta, u) - target) ** 2)
 
-    def loss_sens(theta, u, target):
-        return jnp.sum((q_sens(theta, u) - target) ** 2)
+    def loss_rev(theta, u, target):
+        return jnp.sum((q_rev(theta, u) - target) ** 2)
 
     deriv_comp = {}
     c_fwd, deriv_comp["forward"] = aot_compile(q_phys, theta_phys, u)
@@ -713,15 +714,15 @@ def run(args) -> dict:
     c_grad, deriv_comp["grad_phys"] = aot_compile(jax.grad(loss), theta_phys, u, target)
     c_gfwd, deriv_comp["grad_phys_forward_mode"] = aot_compile(
         jax.jacfwd(loss), theta_phys, u, target)
-    c_gsens, deriv_comp["grad_phys_forward_sensitivities"] = aot_compile(
-        jax.grad(loss_sens), theta_phys, u, target)
+    c_grev, deriv_comp["grad_phys_checkpointed_scan"] = aot_compile(
+        jax.grad(loss_rev), theta_phys, u, target)
     dvariants = {
         "forward": lambda: c_fwd(theta_phys, u),
         "jacfwd_phys": lambda: c_jphys(theta_phys, u),
         "jacfwd_phys_pi": lambda: c_jall(theta_all, u),
         "grad_phys": lambda: c_grad(theta_phys, u, target),
         "grad_phys_forward_mode": lambda: c_gfwd(theta_phys, u, target),
-        "grad_phys_forward_sensitivities": lambda: c_gsens(theta_phys, u, target),
+        "grad_phys_checkpointed_scan": lambda: c_grev(theta_phys, u, target),
     }
     deriv, douts = interleaved(dvariants, repeats)
     base = deriv["forward"]["median_s"]
@@ -732,13 +733,11 @@ def run(args) -> dict:
     deriv["jacfwd_phys_pi"]["shape"] = list(np.shape(douts["jacfwd_phys_pi"]))
     deriv["grad_phys"]["value"] = np.asarray(douts["grad_phys"]).tolist()
     deriv["grad_phys"]["finite"] = bool(np.all(np.isfinite(np.asarray(douts["grad_phys"]))))
-    g_rev = np.asarray(douts["grad_phys"])
-    g_fwd = np.asarray(douts["grad_phys_forward_mode"])
-    deriv["grad_phys_forward_mode"]["max_rel_diff_vs_grad"] = float(
-        np.max(np.abs(g_fwd - g_rev)) / np.max(np.abs(g_rev)))
-    g_sens = np.asarray(douts["grad_phys_forward_sensitivities"])
-    deriv["grad_phys_forward_sensitivities"]["max_rel_diff_vs_grad"] = float(
-        np.max(np.abs(g_sens - g_rev)) / np.max(np.abs(g_rev)))
+    g_default = np.asarray(douts["grad_phys"])
+    for other in ("grad_phys_forward_mode", "grad_phys_checkpointed_scan"):
+        g = np.asarray(douts[other])
+        deriv[other]["max_rel_diff_vs_grad"] = float(
+            np.max(np.abs(g - g_default)) / np.max(np.abs(g_default)))
     deriv["parameters"] = list(PHYSICAL)
     res["derivatives"] = deriv
 
@@ -816,8 +815,8 @@ def run(args) -> dict:
               TARGETS["grad_over_forward"]),
         ratio("same gradient by forward mode (jacfwd of loss) / fwd", "grad_phys_forward_mode",
               "forward"),
-        ratio("jax.grad with adjoint=ForwardSensitivities() / forward",
-              "grad_phys_forward_sensitivities", "forward", TARGETS["grad_over_forward"]),
+        ratio("jax.grad with adjoint=CheckpointedScan() (reverse mode) / forward",
+              "grad_phys_checkpointed_scan", "forward"),
         limit("worst compile time [s]", worst_compile[1], TARGETS["compile_s"],
               worst_compile[0]),
         limit("gradient memory, 10 s trace [MB]", mem_10s, TARGETS["grad_memory_10s_MB"],
@@ -896,7 +895,7 @@ def print_report(res: dict) -> None:
           "jacfwd_phys_pi": "jacfwd, 9 physical + 35 PI weights",
           "grad_phys": "grad of sum((q - target)^2), 9 physical",
           "grad_phys_forward_mode": "same gradient by jacfwd(loss) (info, forward mode)",
-          "grad_phys_forward_sensitivities": "grad, adjoint=ForwardSensitivities()"}
+          "grad_phys_checkpointed_scan": "grad, adjoint=CheckpointedScan() (reverse)"}
     for key, label in dl.items():
         entry = d[key]
         print(f"{label:54s} {fmt_s(entry['median_s']):>9s} {fmt_s(entry['min_s']):>9s} "

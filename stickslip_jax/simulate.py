@@ -161,8 +161,10 @@ def simulate(
     The actuator starts at rest under ``voltage[0]``; between samples the voltage is
     linear (first-order hold). ``q[0]`` is the rest output. ``drive`` selects
     direction-dependent parameters (default: forward). ``adjoint`` chooses how
-    ``jax.grad`` goes through the simulation (:mod:`stickslip_jax.adjoint`;
-    ``ForwardSensitivities()`` makes gradients over a few parameters about 3x cheaper).
+    derivatives go through the simulation (:mod:`stickslip_jax.adjoint`): the default
+    ``ForwardSensitivities()`` gives ``jax.grad`` over a few parameters from forward
+    sensitivities (about 3x cheaper than reverse mode); ``CheckpointedScan()`` is plain
+    reverse mode through the scan.
     """
     voltage, drive = _checked(voltage, drive)
     return _simulate(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver,
