@@ -122,10 +122,11 @@ def test_reverse_mode_gradient(setup):
 
 @pytest.mark.parametrize("max_directions", [64, 2])
 def test_forward_sensitivities_give_the_same_derivatives(setup, max_directions):
-    """adjoint=ForwardSensitivities() changes how a gradient is computed, not its value:
-    the gradient over the parameters, over the voltage and over both, jacfwd and the
-    batched simulation all equal the default's (with max_directions=2 the seven
-    perturbed parameters take the fallback: plain JAX derivatives)."""
+    """ForwardSensitivities (the default adjoint) changes how a gradient is computed,
+    not its value: the gradient over the parameters, over the voltage and over both,
+    jacfwd and the batched simulation all equal plain reverse mode's
+    (``CheckpointedScan()``; with max_directions=2 the seven perturbed parameters take
+    the fallback: plain JAX derivatives)."""
     base, u, dt = ss.lu2015_slc1720(), setup["u"], DT
     adjoint = ss.ForwardSensitivities(max_directions=max_directions)
     target = np.asarray(setup["q_of"](jnp.full(len(NAMES), 0.01)))
