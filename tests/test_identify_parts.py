@@ -1,5 +1,6 @@
 """Pieces of the identification: start-up estimates, transforms, spectra, statistics."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,6 +16,7 @@ from stickslip_jax.identify.initial import (
     scale_to_step_mode,
     stroke_along,
 )
+from stickslip_jax.identify.parameters import PI_SUM_FLOOR
 from stickslip_jax.identify.report import classify_regime
 from stickslip_jax.identify.residuals import band_log_psd, band_matrix, noise_floor_psd
 from stickslip_jax.noise import noise_sigma
@@ -122,6 +124,30 @@ def test_parameter_map_starts_at_the_start_and_keeps_pi_monotone():
     assert float(moved.friction.rho1) >= 0
     with pytest.raises(KeyError, match="not a fittable"):
         ParameterMap.make(act, ["mass"])
+
+
+def test_a_pi_partial_sum_at_rounding_level_is_lifted_a_folded_loop_is_refused():
+    # set_10 from the profile: after a 75-step polish one partial sum of the PI
+    # weights rounded to ≤ 0 and the diagnosis stopped with "not monotone".
+    act = ss.lu2015_slc1720()
+    w = np.asarray(act.hysteresis.weights).copy()
+    top = float(np.cumsum(w).max())
+    w[3] = -np.sum(w[:3])                       # partial sum 3 rounds to 0 (or −1e-17)
+    w[4] += 0.3 * top                           # the loop goes on rising after it
+    folded = np.cumsum(w)
+    assert abs(folded[3]) < 1e-15 * top and np.all(np.delete(folded, 3) > 0)
+    rounded = eqx.tree_at(lambda a: a.hysteresis.weights, act, jnp.asarray(w))
+    pmap = ParameterMap.make(rounded, ["pi_weights"])
+    start = np.asarray(pmap.actuator(pmap.zeros()).hysteresis.weights)
+    sums = np.cumsum(start)
+    assert np.all(sums > 0)
+    assert sums[3] == pytest.approx(PI_SUM_FLOOR * folded.max(), rel=1e-6)
+    np.testing.assert_allclose(start, w, rtol=0, atol=2 * PI_SUM_FLOOR * top)
+    # A partial sum clearly below zero is a folded loop, not rounding.
+    w[3] -= 1e-6 * top
+    with pytest.raises(ValueError, match="not monotone"):
+        ParameterMap.make(eqx.tree_at(lambda a: a.hysteresis.weights, act, jnp.asarray(w)),
+                          ["pi_weights"])
 
 
 def test_noise_floor_of_white_noise_gives_its_sigma():
