@@ -89,6 +89,16 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
     }
 
 
+def write_json(args, rows: list[dict]) -> None:
+    """The rows so far to ``--json`` (if given)."""
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"rows": rows, "from_profile": args.from_profile,
+                                         "variants": bool(args.variants),
+                                         "reduced": args.reduced,
+                                         "jax": jax.__version__}, indent=1, default=float))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sets", default="", help="comma-separated set folders (default all)")
@@ -123,6 +133,7 @@ def main() -> None:
                           max_rounds=args.max_rounds)
             row["hidden"] = answers[name]
         rows.append(row)
+        write_json(args, rows)  # after every set: a later crash keeps the rows done
         print(json.dumps({k: row[k] for k in ("set", "hidden", "first", "verdict",
                                               "nrmse_before", "nrmse_after", "wall_s")}),
               flush=True)
@@ -134,12 +145,6 @@ def main() -> None:
         print(f"| {r['set']} | {r['hidden']} | {r['first']} | {r['verdict']} | "
               f"{100 * r['nrmse_before']:.4f} % | {100 * r['nrmse_after']:.4f} % | "
               f"{100 * r['noise_floor_nrmse']:.4f} % | {ex} | {r['wall_s']:.0f} s |")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"rows": rows, "from_profile": args.from_profile,
-                                         "variants": bool(args.variants),
-                                         "reduced": args.reduced,
-                                         "jax": jax.__version__}, indent=1, default=float))
     sys.exit(0)
 
 

@@ -314,7 +314,7 @@ def _first_order_start(problem: _Problem, act: Actuator, base_names: list[str],
             start, specs = cand.attach(moved, frac * strength, probe)
             ParameterMap.make(start, base_names)  # the refit must be able to start here
             cost = problem.evaluate(start)[0]
-        except ValueError:  # e.g. the moved PI loop is not monotone (rounding)
+        except ValueError:  # e.g. the moved PI loop folded (a partial sum below zero)
             continue
         if np.isfinite(cost) and (best is None or cost < best[0]):
             best = (cost, start, specs)
