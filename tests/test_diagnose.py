@@ -119,3 +119,21 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
     assert again.exit_code == 2 and "--force" in again.output
     bad = runner.invoke(app, args[:3] + ["--candidates", "magic"])
     assert bad.exit_code == 2 and "magic" in bad.output
+
+
+def test_a_polish_or_refit_short_of_its_optimum_is_said(base, tmp_path):
+    """A baseline polish and a refit that stop at max_steps are reported (notes in
+    diagnosis.json and report.md; the refit's note beside its ΔBIC, an upper bound)."""
+    from stickslip_jax.diagnose.report import diagnosis_dict, report_markdown
+
+    recs = reduced_set(base, "sensor_delay")[2:7]
+    d = diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(),
+                 candidates=["sensor_delay"], max_rounds=1, top=1, max_steps=1,
+                 fallback=False)
+    assert any(n.startswith("Baseline polish: not converged: hit max_steps=3")
+               for n in d.notes), d.notes
+    refit = [c for c in d.rounds[0] if c.refitted]
+    assert refit, d.rounds
+    assert refit[0].note.startswith("refit not converged: hit max_steps=1")
+    md = report_markdown(diagnosis_dict(d), {}, tmp_path)
+    assert "## Notes" in md and "Baseline polish: not converged" in md

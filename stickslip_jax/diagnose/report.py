@@ -134,6 +134,8 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
                   f"{', '.join(u['depends_on']) or 'nothing significant'} (ΔBIC "
                   f"{u['criterion_delta']:.1f}, mean (e/σ)² {u['chi2_before']:.3f} → "
                   f"{u['chi2_after']:.3f}).", ""]
+    if content["notes"]:
+        lines += ["## Notes", ""] + [f"- {n}" for n in content["notes"]] + [""]
     lines += ["## Candidates scored", ""]
     for i, rnd in enumerate(content["candidates_by_round"], 1):
         lines += [f"Round {i}:", "",

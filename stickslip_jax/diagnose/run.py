@@ -526,12 +526,22 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     act = init
     if identify_steps:
         say("[baseline] identification (the paper's model)")
-        act = identify(data.recordings, init=init, fix=fix, steps=identify_steps,
-                       max_steps=60, echo=say).actuator
+        ident = identify(data.recordings, init=init, fix=fix, steps=identify_steps,
+                         max_steps=60, echo=say)
+        act = ident.actuator
+        notes += [f"Baseline identification, step '{s.name}': {s.result.message}; the "
+                  f"polish starts from where it stopped." for s in ident.steps
+                  if s.result is not None and not s.converged]
     base_names = baseline_free(act, data, fix)
     unpolished = act
-    act, rss, _ = problem.fit(act, base_names, {}, label="baseline polish",
-                              max_steps=3 * max_steps)
+    act, rss, polish = problem.fit(act, base_names, {}, label="baseline polish",
+                                   max_steps=3 * max_steps)
+    if not polish.converged:
+        # Every later comparison is against this optimum: a baseline short of its own
+        # optimum leaves residual that any entry with a baseline-like signature buys.
+        notes.append(f"Baseline polish: {polish.message} (cost {polish.cost_start:.5g} "
+                     f"-> {polish.cost_end:.5g}); the baseline may be short of its "
+                     f"optimum, and part of what the entries remove may be its own.")
     rss, nrmse0, q0 = problem.evaluate(act)
     baseline = act
     timings["baseline_s"] = time.perf_counter() - t0
@@ -652,6 +662,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             res.explained = (rss - rss_new) / excess if excess > 0.01 * n_obs else np.nan
             res.chi2_after = rss_new / n_obs
             res.wall_s = time.perf_counter() - t0
+            if not out.converged:
+                # Its ΔBIC is an upper bound: more steps could only lower the cost.
+                res.note = f"refit {out.message}"
 
         # The leader-alone rule needs an excess over the noise to take shares of.
         above_noise = excess if excess > 0.01 * n_obs else None
@@ -686,10 +699,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             pool = [c for c in pool if c.name != best.name]
             nrmse_now = best.nrmse_after
         else:
-            best.note = ("not accepted: " + ("ΔBIC above the threshold"
-                                             if best.criterion_delta >= BIC_MIN else
-                                             f"explains only {100 * best.explained:.0f} % of "
-                                             f"the excess over the noise"))
+            why = ("ΔBIC above the threshold" if best.criterion_delta >= BIC_MIN else
+                   f"explains only {100 * best.explained:.0f} % of the excess over the noise")
+            best.note = "; ".join(filter(None, [best.note, "not accepted: " + why]))
             say(f"[reject] {best.name}: {best.note}")
             break
         if rss / n_obs <= ADEQUATE_CHI2:
