@@ -39,10 +39,13 @@ import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
 
-def value_and_jacfwd(fn: Callable, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+def value_and_jacfwd(fn: Callable, x: jax.Array,
+                     basis: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
     """``(fn(x), ∂fn/∂x)`` for a 1-D ``x`` from one vmapped forward-mode pass: the primal
-    runs once, the Jacobian's last axis runs over ``x``."""
-    basis = jnp.eye(x.size, dtype=x.dtype)
+    runs once, the Jacobian's last axis runs over ``x``. With ``basis`` (rows: tangent
+    directions) the derivatives along those rows instead, one column each."""
+    if basis is None:
+        basis = jnp.eye(x.size, dtype=x.dtype)
     return jax.vmap(lambda t: jax.jvp(fn, (x,), (t,)), out_axes=(None, -1))(basis)
 
 

@@ -218,3 +218,26 @@ def test_solver_converges_to_the_least_squares_optimum_and_says_when_it_has_not(
     assert out.cost_end < out.cost_start
     short = solve_least_squares(residuals, jnp.array([1.0, 0.5]), max_steps=2)
     assert not short.converged and "max_steps=2" in short.message
+
+
+def test_a_jacobian_whose_columns_are_shared_among_threads_is_the_whole_jacobian(monkeypatch):
+    from stickslip_jax.identify.solve import ColumnSplitJacobian, jacobian_threads
+
+    def fn(th, scale):
+        return jnp.stack([th[0] * th[1], scale * jnp.sin(th[2]), th[3] ** 2 + th[4],
+                          th[4] * th[0], jnp.exp(th[1] - th[3])])
+
+    x = jnp.array([0.3, -1.2, 0.7, 2.0, 0.5])
+    want = np.asarray(jax.jacfwd(fn)(x, 2.0))
+    assert want.shape == (5, 5) and np.count_nonzero(want) == 9
+    # 1 thread; 2 and 3 (5 columns: shares of 3 and 2, 2 and 2 and 1, padded with
+    # zero tangents); more threads than columns.
+    for threads in (1, 2, 3, 8):
+        value, jac = ColumnSplitJacobian(fn, threads)(x, 2.0)
+        np.testing.assert_allclose(np.asarray(value), np.asarray(fn(x, 2.0)), rtol=1e-15)
+        np.testing.assert_allclose(np.asarray(jac), want, rtol=1e-13, atol=1e-15)
+    monkeypatch.setenv("STICKSLIP_JACOBIAN_THREADS", "3")
+    assert jacobian_threads() == 3
+    monkeypatch.setenv("STICKSLIP_JACOBIAN_THREADS", "0")
+    with pytest.raises(ValueError, match="STICKSLIP_JACOBIAN_THREADS"):
+        jacobian_threads()

@@ -1,24 +1,25 @@
 """One least-squares solve: optimistix Levenberg-Marquardt with progress and a verdict.
 
 The Jacobian is built in forward mode, so its cost grows with the number of
-parameters, not the length of the traces. Optimistix linearises the residual function
-at every iterate and then materialises the damped operator column by column; through
-a long scan, replaying the linearised scan for each column is several times slower
-than one forward-mode pass with all tangents at once. :func:`dense_jacobian` therefore
-gives the residual function a custom JVP that builds the dense Jacobian once per
-iterate and applies it as a matrix product.
+parameters, not the length of the traces; it is the cost of every step (one value
+and one Jacobian per LM step, nothing else touches the simulator).
 
-That Jacobian is one ``jax.jit``-ed function (value and Jacobian from a single
-vmapped JVP, so the primal runs once): optimistix's transformations then see one
-call, not the whole simulator, and tracing a solve costs a fraction of a second
-instead of seconds (measured on the 15-recording friction step: 5.7 s → 1.0 s of
-tracing, and one simulation per LM step instead of two).
+:class:`ColumnSplitJacobian` evaluates it outside optimistix's compiled step, with
+its columns shared among threads: each thread runs one vmapped forward-mode pass
+(the primal once, its share of the tangents at once) of the same compiled program.
+The simulator's scan is sequential, so XLA keeps one CPU core busy per call; two
+calls on two threads use two cores. The step then receives the value and the
+Jacobian as arguments (a custom JVP applies the Jacobian as a matrix product), so
+optimistix's transformations never see the simulator and tracing the step costs a
+fraction of a second.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -55,36 +56,91 @@ class SolveResult:
     jacobian: np.ndarray | None = None
 
 
-def dense_jacobian(fn: Callable):
-    """``fn(θ, args)`` with a JVP rule ``J(θ)·t``, ``J = ∂fn/∂θ`` dense; and the jitted
-    ``value_and_jacobian(θ, args)`` that rule calls.
+def jacobian_threads() -> int:
+    """Threads that share a Jacobian's columns: ``STICKSLIP_JACOBIAN_THREADS`` if set,
+    else the CPU cores (at most 4) on the CPU backend and 1 on an accelerator, whose
+    one call already runs the columns in parallel."""
+    env = os.environ.get("STICKSLIP_JACOBIAN_THREADS")
+    if env:
+        try:
+            n = int(env)
+        except ValueError:
+            raise ValueError(f"STICKSLIP_JACOBIAN_THREADS must be a positive integer, "
+                             f"got {env!r}") from None
+        if n < 1:
+            raise ValueError(f"STICKSLIP_JACOBIAN_THREADS must be a positive integer, got {n}")
+        return n
+    if jax.default_backend() != "cpu":
+        return 1
+    return max(1, min(os.cpu_count() or 1, 4))
 
-    Values and derivatives are those of ``fn``; only the way the derivative is
-    evaluated changes (once, vectorised over the parameters, then stored). ``args``
-    are never differentiated.
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    if threads not in _POOLS:
+        _POOLS[threads] = ThreadPoolExecutor(max_workers=threads,
+                                             thread_name_prefix="stickslip-jacobian")
+    return _POOLS[threads]
+
+
+class ColumnSplitJacobian:
+    """``(fn(θ, args), ∂fn/∂θ)`` for a 1-D θ, the Jacobian's columns shared among
+    ``threads`` (default :func:`jacobian_threads`).
+
+    Each share is one vmapped forward-mode pass of the same compiled program (equal
+    shares: the last is padded with zero tangents), so a solve compiles the simulator
+    once. A pass's cost is mostly per-operation overhead, not arithmetic (measured
+    through a 17-recording residual: one tangent 0.42 s, two vmapped 0.85 s, 22
+    vmapped 1.15 s; 0.95, 2.63 and 4.34 s with an amplifier stage), so threads pay
+    most for two columns (two one-tangent passes side by side) and for many.
+    ``args`` are never differentiated.
     """
 
-    @jax.jit
-    def value_and_jacobian(theta, args):
-        return value_and_jacfwd(lambda th: fn(th, args), theta)
+    def __init__(self, fn: Callable, threads: int | None = None):
+        self.threads = jacobian_threads() if threads is None else int(threads)
+        self._share = jax.jit(
+            lambda theta, args, basis: value_and_jacfwd(lambda th: fn(th, args), theta, basis))
+        self._compiled: dict = {}
 
-    @jax.custom_jvp
-    def wrapped(theta, args):
-        return value_and_jacobian(theta, args)[0]
+    def __call__(self, theta, args=None) -> tuple[jax.Array, jax.Array]:
+        theta = jnp.asarray(theta, dtype=float)
+        k = theta.size
+        w = max(1, min(self.threads, k))
+        c = -(-k // w)
+        bases = jnp.asarray(np.eye(w * c, k).reshape(w, c, k))
+        if w == 1:
+            return self._share(theta, args, bases[0])
+        # Compiled here, once, before the threads start (each would compile its own).
+        key = (k, c, jax.tree.structure(args))
+        if key not in self._compiled:
+            self._compiled[key] = self._share.lower(theta, args, bases[0]).compile()
+        share = self._compiled[key]
+        futures = [_pool(w).submit(lambda b=b: jax.block_until_ready(share(theta, args, b)))
+                   for b in bases]
+        parts = [f.result() for f in futures]
+        jac = jnp.concatenate([p[1] for p in parts], axis=1)[:, :k]
+        return parts[0][0], jac
 
-    @wrapped.defjvp
-    def _jvp(primals, tangents):
-        (theta, args), (t, _) = primals, tangents
-        value, jac = value_and_jacobian(theta, args)
-        return value, jac @ t
 
-    return wrapped, value_and_jacobian
+@jax.custom_jvp
+def _evaluated(phi, value_and_jac):
+    """``value`` of a precomputed ``(value, jac)`` at ``phi``, with derivative ``jac``."""
+    del phi
+    return value_and_jac[0]
+
+
+@_evaluated.defjvp
+def _evaluated_jvp(primals, tangents):
+    (_, (value, jac)), (t, _) = primals, tangents
+    return value, jac @ t
 
 
 def value_and_jacobian(residuals: Callable, theta):
-    """``(residuals(θ), ∂residuals/∂θ)`` from one forward-mode pass (numpy arrays)."""
-    _, both = dense_jacobian(lambda th, args: residuals(th))
-    value, jac = both(jnp.asarray(theta, dtype=float), None)
+    """``(residuals(θ), ∂residuals/∂θ)`` from forward mode, shared among threads
+    (numpy arrays)."""
+    value, jac = ColumnSplitJacobian(lambda th, args: residuals(th))(theta)
     return np.asarray(value), np.asarray(jac)
 
 
@@ -96,7 +152,9 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
 
     Optimistix's solver takes the steps; this loop drives them one at a time (as
     ``optx.least_squares`` does inside a while loop) so that it can report progress
-    and apply a second convergence test. Two ways to converge, whichever comes first:
+    and apply a second convergence test, and evaluates the residual and its Jacobian
+    at the point each step tries before the step (:class:`ColumnSplitJacobian`, the
+    one place the simulator runs). Two ways to converge, whichever comes first:
 
     - optimistix's Cauchy test: the change of θ and of the residual vector between
       accepted steps are small in RMS over their entries, ``rms(|Δθ| / (atol +
@@ -129,24 +187,34 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                            np.zeros((r.size, 0)))
 
     # The solve runs in φ = d·(θ − θ0); d and θ0 are arguments of the compiled step,
-    # so the scaling is chosen after the first step without compiling again.
+    # so the scaling is chosen after the first evaluation without compiling again.
     def scaled(phi, args):
         origin, d = args
         return residuals(origin + phi / d)
 
-    dense, _ = dense_jacobian(scaled)
+    evaluate = ColumnSplitJacobian(scaled)
 
     def fn(phi, args):
-        return dense(phi, args), None
+        # args[2]: the value and Jacobian at φ, evaluated before the step.
+        return _evaluated(phi, args[2]), None
 
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm)
     options, tags = {"jac": "fwd"}, frozenset()
-    args = (theta0, jnp.ones_like(theta0))
     phi0 = jnp.zeros_like(theta0)
-    f_struct = jax.eval_shape(lambda: dense(phi0, args))
+    d = jnp.ones_like(theta0)
+    value, jac = evaluate(phi0, (theta0, d))
+    if scale_by_jacobian:
+        # MINPACK's x_scale='jac': the Jacobian at the start gives the column norms,
+        # and the solve runs in the scaled coordinates (∂r/∂φ = ∂r/∂θ / d).
+        norms = np.sqrt(np.sum(np.asarray(jac) ** 2, axis=0))
+        norms = np.where(np.isfinite(norms) & (norms > 1e-12 * max(float(norms.max()), 1e-300)),
+                         norms, max(float(norms.max()), 1.0))
+        d = jnp.asarray(norms)
+        jac = jac / d[None, :]
     if ftol is None:
-        ftol = 0.1 / max(int(np.prod(f_struct.shape)), 1)
-    state = solver.init(fn, phi0, args, options, f_struct, None, tags)
+        ftol = 0.1 / max(int(value.size), 1)
+    args = (theta0, d, (value, jac))
+    state = solver.init(fn, phi0, args, options, jax.eval_shape(lambda: value), None, tags)
     dynamic0, static = eqx.partition(state, eqx.is_array)
 
     @jax.jit
@@ -162,23 +230,15 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         return np.asarray(jac) * np.asarray(d)[None, :]
 
     y, dynamic = phi0, dynamic0
-    if scale_by_jacobian:
-        # MINPACK's x_scale='jac': the first call evaluates the start, whose Jacobian
-        # gives the column norms; then the solve restarts in the scaled coordinates.
-        _, first, _ = step(y, dynamic, args)
-        jac0 = jacobian_at_accepted(first, args[1])
-        d = np.sqrt(np.sum(jac0**2, axis=0))
-        d = np.where(np.isfinite(d) & (d > 1e-12 * max(float(d.max()), 1e-300)), d,
-                     max(float(d.max()), 1.0))
-        args = (theta0, jnp.asarray(d))
-
     costs: list[float] = []  # cost at each accepted point, the start first
     residual_start = None
     ok, message, n = False, f"not converged: hit max_steps={max_steps}", 0
     # The first call only evaluates the start (optimistix accepts it as the first
     # point); each later call proposes one LM step and accepts or rejects it.
     for n in range(max_steps + 1):
-        y, dynamic, loss = step(y, dynamic, args)
+        if n:  # the point this step tries (the start's was evaluated above)
+            value, jac = evaluate(eqx.combine(static, dynamic).y_eval, (theta0, d))
+        y, dynamic, loss = step(y, dynamic, (theta0, d, (value, jac)))
         st = eqx.combine(static, dynamic)
         cost, accepted = float(loss), int(st.num_accepted_steps)
         if accepted > len(costs):
@@ -205,9 +265,9 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     # compiled evaluation needed).
     st = eqx.combine(static, dynamic)
     residual = np.asarray(st.f_info.residual)
-    jac = jacobian_at_accepted(dynamic, args[1])
+    jac = jacobian_at_accepted(dynamic, d)
     wall = time.perf_counter() - start
     cost_start, cost_end = (costs[0], costs[-1]) if costs else (np.nan, np.nan)
-    theta = np.asarray(args[0] + y / args[1])
+    theta = np.asarray(theta0 + y / d)
     return SolveResult(theta, ok, message, n, wall, cost_start, cost_end, residual_start,
                        residual, jac)
