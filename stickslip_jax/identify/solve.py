@@ -102,26 +102,26 @@ class ColumnSplitJacobian:
         self.threads = jacobian_threads() if threads is None else int(threads)
         self._share = jax.jit(
             lambda theta, args, basis: value_and_jacfwd(lambda th: fn(th, args), theta, basis))
-        self._compiled: dict = {}
+        self._programs: dict = {}
 
     def __call__(self, theta, args=None) -> tuple[jax.Array, jax.Array]:
         theta = jnp.asarray(theta, dtype=float)
         k = theta.size
-        w = max(1, min(self.threads, k))
-        c = -(-k // w)
-        bases = jnp.asarray(np.eye(w * c, k).reshape(w, c, k))
-        if w == 1:
-            return self._share(theta, args, bases[0])
-        # Compiled here, once, before the threads start (each would compile its own).
-        key = (k, c, jax.tree.structure(args))
-        if key not in self._compiled:
-            self._compiled[key] = self._share.lower(theta, args, bases[0]).compile()
-        share = self._compiled[key]
-        futures = [_pool(w).submit(lambda b=b: jax.block_until_ready(share(theta, args, b)))
-                   for b in bases]
+        key = (k, jax.tree.structure(args))
+        if key not in self._programs:
+            # The shares' tangent bases and their program, compiled once here before any
+            # thread starts (each thread would otherwise compile its own).
+            w = max(1, min(self.threads, k))
+            c = -(-k // w)
+            bases = jnp.asarray(np.eye(w * c, k).reshape(w, c, k))
+            self._programs[key] = (bases, self._share.lower(theta, args, bases[0]).compile())
+        bases, share = self._programs[key]
+        if len(bases) == 1:
+            return share(theta, args, bases[0])
+        futures = [_pool(len(bases)).submit(
+            lambda b=b: jax.block_until_ready(share(theta, args, b))) for b in bases]
         parts = [f.result() for f in futures]
-        jac = jnp.concatenate([p[1] for p in parts], axis=1)[:, :k]
-        return parts[0][0], jac
+        return parts[0][0], jnp.concatenate([p[1] for p in parts], axis=1)[:, :k]
 
 
 @jax.custom_jvp
@@ -207,8 +207,9 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         # MINPACK's x_scale='jac': the Jacobian at the start gives the column norms,
         # and the solve runs in the scaled coordinates (∂r/∂φ = ∂r/∂θ / d).
         norms = np.sqrt(np.sum(np.asarray(jac) ** 2, axis=0))
-        norms = np.where(np.isfinite(norms) & (norms > 1e-12 * max(float(norms.max()), 1e-300)),
-                         norms, max(float(norms.max()), 1.0))
+        largest = float(norms.max())
+        norms = np.where(np.isfinite(norms) & (norms > 1e-12 * max(largest, 1e-300)), norms,
+                         max(largest, 1.0))
         d = jnp.asarray(norms)
         jac = jac / d[None, :]
     if ftol is None:
