@@ -42,6 +42,8 @@ from stickslip_jax.diagnose import diagnose  # noqa: E402
 from stickslip_jax.diagnose.concealed import VARIANTS, with_variant  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 ROOT = Path(__file__).resolve().parent.parent
 CONCEALED = ROOT / "fixtures" / "concealed"
 

@@ -52,6 +52,8 @@ from stickslip_jax.identify.parameters import ParameterMap  # noqa: E402
 from stickslip_jax.identify.residuals import DEFAULT_W_PSD, TraceResiduals  # noqa: E402
 from stickslip_jax.identify.solve import solve_least_squares  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 ROOT = Path(__file__).resolve().parent.parent
 FIX = ROOT / "fixtures" / "identification"
 FACTORS = {"Mp": 1.4, "Dp": 0.6, "Kp": 1.5, "Ds": 0.65, "rho0": 0.6,

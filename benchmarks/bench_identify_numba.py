@@ -45,6 +45,8 @@ from numba import njit, prange  # noqa: E402
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.simulate import DEFAULT_SUBSTEPS  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 SCALARS = ("Mp", "Dp", "Kp", "Ds", "rho0", "z_ba_forward", "z_ba_backward")
 
 

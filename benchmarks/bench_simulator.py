@@ -71,6 +71,12 @@ What is timed
    the gradient to after running it; also the run alone (peak reset through
    ``/proc/self/clear_refs`` where the kernel allows it).
 7. Ratios next to the targets of the issue, each marked PASS or MISS.
+8. XLA's loop compilation: the JAX rows run with ``stickslip_jax.fast_cpu_loops()``
+   (small while loops compiled as native loops, as the command line does; see
+   ``stickslip_jax/xla_flags.py``) unless ``--xla-default-loops``. A fresh subprocess
+   with XLA's default setting times the single and batched simulation and the numba
+   plain loop interleaved, so the table shows what the setting changes (ratios to
+   numba within each process).
 
 The machine may be shared and noisy: the timed variants of a section are run in
 interleaved rounds (rotating order) and medians and minima reported; ``cpu/wall``
@@ -107,6 +113,7 @@ import scipy  # noqa: E402
 from numba import njit, prange  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
+from stickslip_jax import fast_cpu_loops  # noqa: E402
 from stickslip_jax.adjoint import CheckpointedScan  # noqa: E402
 from stickslip_jax.model.profiles import lu2015_slc1720  # noqa: E402
 from stickslip_jax.signals import sawtooth  # noqa: E402
@@ -124,7 +131,7 @@ PHYSICAL = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "z_ba_forward", "z_ba_backward
 
 TARGETS = {
     "batched_per_recording_over_numba": 2.0,
-    "lsoda_over_batched_per_recording": 50.0,
+    "lsoda_over_jax": 50.0,
     "jacfwd_over_forward": 6.0,
     "grad_over_forward": 6.0,
     "compile_s": 15.0,
@@ -521,6 +528,39 @@ def run_memory_child(duration_s: float, substeps: int) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def default_loops_child(duration_s: float, substeps: int, repeats: int) -> dict:
+    """Forward timings with XLA's default loop compilation (run in a fresh process)."""
+    actuator = lu2015_slc1720()
+    _, u_np = sawtooth(AMPLITUDE, FREQUENCY, duration_s=duration_s, sample_rate_Hz=FS)
+    u = jnp.asarray(u_np)
+    ubatch_np = np.tile(u_np, (N_BATCH, 1))
+    ubatch = jnp.asarray(ubatch_np)
+    prm, r, w = reference_parameters(actuator)
+    numba_plain(np.ascontiguousarray(u_np[:100]), DT, substeps, prm, r, w)
+    variants = {
+        "jax_single": lambda: simulate(actuator, u, dt=DT, substeps=substeps),
+        "jax_batch17": lambda: simulate_batch(actuator, ubatch, dt=DT, substeps=substeps),
+        "numba_plain": lambda: numba_plain(u_np, DT, substeps, prm, r, w),
+    }
+    for fn in variants.values():
+        jax.block_until_ready(fn())
+    stats, _ = interleaved(variants, repeats)
+    stats["jax_batch17"]["per_recording_median_s"] = stats["jax_batch17"]["median_s"] / N_BATCH
+    stats["XLA_FLAGS"] = os.environ.get("XLA_FLAGS")
+    return stats
+
+
+def run_default_loops_child(duration_s: float, substeps: int, repeats: int) -> dict:
+    env = {**os.environ, "XLA_FLAGS": ""}
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--default-loops-child",
+           str(duration_s), "--substeps", str(substeps), "--repeats", str(repeats),
+           "--xla-default-loops"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
+    if proc.returncode != 0:
+        return {"error": proc.stderr[-2000:]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 # ---------------------------------------------------------------------------------
 # main
 # ---------------------------------------------------------------------------------
@@ -566,6 +606,7 @@ def run(args) -> dict:
             "cpu_affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
             else None, "jax_devices": [str(d) for d in jax.devices()],
             "XLA_FLAGS": os.environ.get("XLA_FLAGS"),
+            "fast_cpu_loops": not args.xla_default_loops,
         },
     }
     log = print if args.verbose else (lambda *a, **k: None)
@@ -573,6 +614,8 @@ def run(args) -> dict:
     # --- 6. memory, first: the child inherits this process's RSS as its ru_maxrss floor
     log("gradient memory (subprocess) ...")
     mem = run_memory_child(mem_duration, substeps)
+    log("XLA default loops (subprocess) ...")
+    res["default_xla_loops"] = run_default_loops_child(duration, substeps, repeats)
 
     # --- reference ---------------------------------------------------------------
     log("reference ...")
@@ -772,6 +815,9 @@ def run(args) -> dict:
                if "error" not in mem else float("nan"))
 
     def per_rec(key, stat):
+        if key.startswith("default_loops:"):
+            entry = res["default_xla_loops"][key.split(":", 1)[1]]
+            return entry.get(f"per_recording_{stat}_s", entry[f"{stat}_s"])
         if key == "lsoda_best":
             return min(per_rec("scipy_LSODA_one_call", stat),
                        per_rec("scipy_LSODA_per_interval", stat))
@@ -801,13 +847,25 @@ def run(args) -> dict:
               "numba_interval"),
         ratio("JAX batched per rec. / numba 17 rec. prange per rec.", "jax_batch17",
               "numba_plain_batch17_prange"),
+        ratio("LSODA (faster formulation) / JAX single", "lsoda_best", "jax_single",
+              TARGETS["lsoda_over_jax"], le=False),
         ratio("LSODA (faster formulation) / JAX batched per recording", "lsoda_best",
-              "jax_batch17", TARGETS["lsoda_over_batched_per_recording"], le=False),
+              "jax_batch17"),
         ratio("LSODA one call / JAX batched per recording", "scipy_LSODA_one_call",
               "jax_batch17"),
         ratio("LSODA per interval / JAX batched per recording", "scipy_LSODA_per_interval",
               "jax_batch17"),
-        ratio("LSODA (faster formulation) / JAX single", "lsoda_best", "jax_single"),
+    ]
+    if "error" not in res["default_xla_loops"]:
+        ratios += [
+            ratio("XLA default loops: JAX single / numba plain (same process)",
+                  "default_loops:jax_single", "default_loops:numba_plain"),
+            ratio("XLA default loops: JAX batched per rec. / numba plain",
+                  "default_loops:jax_batch17", "default_loops:numba_plain"),
+            ratio("XLA default loops: LSODA (faster) / JAX single", "lsoda_best",
+                  "default_loops:jax_single"),
+        ]
+    ratios += [
         ratio("jacfwd (9 physical) / forward", "jacfwd_phys", "forward",
               TARGETS["jacfwd_over_forward"]),
         ratio("jacfwd (9 physical + 35 PI weights) / forward", "jacfwd_phys_pi", "forward"),
@@ -946,8 +1004,17 @@ def main(argv=None) -> int:
     ap.add_argument("--scipy-budget", type=float, default=8.0,
                     help="seconds per RK45/Radau run before a prefix is used (default 8)")
     ap.add_argument("--verbose", action="store_true", help="print progress")
+    ap.add_argument("--xla-default-loops", action="store_true",
+                    help="keep XLA's default loop compilation (skip fast_cpu_loops)")
     ap.add_argument("--memory-child", type=float, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--default-loops-child", type=float, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if not args.xla_default_loops:
+        fast_cpu_loops()  # before JAX's first computation in this process
+    if args.default_loops_child is not None:
+        print(json.dumps(default_loops_child(args.default_loops_child, args.substeps,
+                                             args.repeats or 7)))
+        return 0
     if args.memory_child is not None:
         print(json.dumps(memory_child(args.memory_child, args.substeps)))
         return 0

@@ -33,6 +33,8 @@ from stickslip_jax.signals import sawtooth  # noqa: E402
 from stickslip_jax.simulate import DEFAULT_SUBSTEPS  # noqa: E402
 from stickslip_jax.sweep import DriveGrid, samples_needed, velocity_map  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 FS = 25_000.0
 PERIODS = 10
 SIZES = {50: (5, 5), 200: (10, 10), 800: (20, 20)}

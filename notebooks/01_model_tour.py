@@ -35,6 +35,8 @@ import numpy as np
 
 import stickslip_jax as ss
 
+ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 act = ss.lu2015_slc1720()
 params = ss.params_from_actuator(act)

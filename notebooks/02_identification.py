@@ -40,6 +40,8 @@ import numpy as np
 
 import stickslip_jax as ss
 
+ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 FIXTURES = next(p / "fixtures" for p in (Path.cwd(), *Path.cwd().parents)
                 if (p / "fixtures" / "identification").is_dir())

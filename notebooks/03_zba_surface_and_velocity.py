@@ -43,6 +43,8 @@ import stickslip_jax as ss
 from stickslip_jax.sweep.zba_surface import plot_zba_surface
 from stickslip_jax.synthetic import example_zba, with_drive_dependent_zba
 
+ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 
 # %% [markdown]

@@ -53,6 +53,8 @@ import stickslip_jax as ss
 from stickslip_jax.diagnose.locate import residual_of
 from stickslip_jax.identify.residuals import _psd
 
+ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 FIXTURES = next(p / "fixtures" for p in (Path.cwd(), *Path.cwd().parents)
                 if (p / "fixtures" / "concealed").is_dir())

@@ -40,6 +40,8 @@ import optimistix as optx
 
 import stickslip_jax as ss
 
+ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 act = ss.lu2015_slc1720()
 FS = 25_000.0

@@ -24,6 +24,8 @@ import numpy as np  # noqa: E402
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.identify.hysteresis_only import fit_hysteresis_only  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures" / "aye2018"
 TRAIN = slice(3151, 3351)
 VALIDATION = {"cycle_3852": slice(3851, 4051), "cycle_5052": slice(5051, 5251),

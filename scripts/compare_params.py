@@ -11,6 +11,8 @@ jax.config.update("jax_enable_x64", True)
 
 import stickslip_jax as ss  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 NAMES = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "z_ba_forward", "z_ba_backward")
 
 

@@ -25,6 +25,8 @@ import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.diagnose.concealed import CANNOT_SHOW, EFFECTS, with_effect  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from make_identification_fixtures import truth_params  # noqa: E402
 

@@ -24,6 +24,8 @@ from stickslip_jax.plots import save_figure, subplots  # noqa: E402
 from stickslip_jax.sweep.zba_surface import plot_zba_surface  # noqa: E402
 from stickslip_jax.synthetic import with_drive_dependent_zba  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

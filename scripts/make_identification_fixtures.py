@@ -20,6 +20,8 @@ import numpy as np  # noqa: E402
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
 OUT = Path(__file__).resolve().parent.parent / "fixtures" / "identification"
 
 

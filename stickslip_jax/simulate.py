@@ -24,6 +24,7 @@ from .adjoint import DEFAULT_ADJOINT, AbstractAdjoint
 from .model.actuator import Actuator
 from .model.base import DriveContext
 from .solvers import RK4, ExplicitRK
+from .xla_flags import native_loops_requested
 
 DEFAULT_SUBSTEPS = 16
 """Default RK4 sub-steps per sample period (chosen by tests/test_convergence.py)."""
@@ -223,8 +224,29 @@ def simulate_states(
     return _trajectory(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver)
 
 
+def default_batching() -> str:
+    """How :func:`simulate_batch` runs its rows by default.
+
+    ``"map"`` (one row after the other, ``jax.lax.map``) on a CPU whose small loops XLA
+    compiles natively (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`): each row is
+    then one tight scalar loop, where ``vmap`` would make every operation a short
+    vector operation (measured, 17 rows of a 1 s trace: 46 ms per row mapped against
+    77 ms vmapped). ``"vmap"`` otherwise: on an accelerator the rows run in parallel,
+    and with XLA's default CPU loops a vmapped row costs less than a mapped one
+    (94 against 150 ms).
+    """
+    if jax.default_backend() == "cpu" and native_loops_requested():
+        return "map"
+    return "vmap"
+
+
 @partial(eqx.filter_jit)
-def _simulate_batch(actuator, voltages, dts, drives, substeps, solver, adjoint):
+def _simulate_batch(actuator, voltages, dts, drives, substeps, solver, adjoint, batching):
+    if batching == "map":
+        return jax.lax.map(
+            lambda row: _simulate(actuator, *row, substeps, solver, adjoint),
+            (voltages, dts, drives),
+        )
     return jax.vmap(_simulate, in_axes=(None, 0, 0, 0, None, None, None))(
         actuator, voltages, dts, drives, substeps, solver, adjoint
     )
@@ -239,21 +261,31 @@ def simulate_batch(
     substeps: int = DEFAULT_SUBSTEPS,
     solver: ExplicitRK = RK4,
     adjoint: AbstractAdjoint = DEFAULT_ADJOINT,
+    batching: str | None = None,
 ) -> Float[Array, "B T"]:
-    """Simulate B voltages of common length T in one batched scan (``adjoint`` as in
+    """Simulate B voltages of common length T in one compiled call (``adjoint`` as in
     :func:`simulate`).
+
+    ``batching``: ``"vmap"`` (one batched scan) or ``"map"`` (the rows one after the
+    other in one program); default :func:`default_batching`. Same numbers either way.
 
     ``dt`` [s] is one value or one per row; ``drives`` is a DriveContext whose fields
     have shape (B,) (see :func:`stack_drives`). Shorter recordings should be padded
     by repeating their last voltage sample; the padded tail of the output is simply
     ignored (the state before it is unaffected: the scan is causal).
     """
+    batching = default_batching() if batching is None else batching
+    if batching not in ("map", "vmap"):
+        raise ValueError(f"batching must be 'map' or 'vmap', got {batching!r}")
     voltages = jnp.asarray(voltages, dtype=float)
+    if voltages.ndim != 2 or voltages.shape[1] < 2:
+        raise ValueError(f"voltages must be a (B, T) array with T ≥ 2, got {voltages.shape}")
     b = voltages.shape[0]
     dts = jnp.broadcast_to(jnp.asarray(dt, dtype=float), (b,))
     if drives is None:
         drives = stack_drives([DriveContext.make()] * b)
-    return _simulate_batch(actuator, voltages, dts, drives, substeps, solver, adjoint)
+    return _simulate_batch(actuator, voltages, dts, drives, substeps, solver, adjoint,
+                           batching)
 
 
 def stack_drives(drives) -> DriveContext:

@@ -286,7 +286,11 @@ def test_simulate_under_jit_and_vmap_gives_identical_numbers():
     mapped = jax.vmap(lambda v, d: ss.simulate(act, v, dt=DT, drive=d))(
         jnp.asarray(volts), ss.stack_drives(drives))
     np.testing.assert_allclose(mapped, eager, **tol)
-    batched = ss.simulate_batch(act, volts, dt=DT, drives=ss.stack_drives(drives))
-    np.testing.assert_allclose(batched, eager, **tol)
+    for batching in ("vmap", "map"):  # one batched scan, or the rows one after the other
+        batched = ss.simulate_batch(act, volts, dt=DT, drives=ss.stack_drives(drives),
+                                    batching=batching)
+        np.testing.assert_allclose(batched, eager, **tol)
+    with pytest.raises(ValueError, match="batching"):
+        ss.simulate_batch(act, volts, dt=DT, batching="pmap")
     # The rows are different motions (scan, backward and forward stepping).
     assert eager[1, -1] < -0.5e-6 < 0.5e-6 < eager[2, -1]

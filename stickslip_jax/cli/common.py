@@ -5,9 +5,12 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import typer
+
+from ..xla_flags import add_xla_flag, fast_cpu_loops
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 3
@@ -17,28 +20,32 @@ def use_all_cpu_cores() -> None:
     """Expose every CPU core as a JAX device, so sharded batches (sweeps) use them all.
 
     XLA runs one small batched computation on one core; as separate devices the cores
-    each take a shard. Must run before JAX starts its backends; a device count already
-    in ``XLA_FLAGS`` is kept, and GPU platforms are unaffected.
+    each take a shard. Must run before JAX starts its backends (too late afterwards,
+    e.g. in-process tests); a device count already in ``XLA_FLAGS`` is kept, and GPU
+    platforms are unaffected.
     """
-    if "jax" in sys.modules:  # too late once the backends exist (e.g. in-process tests)
-        with contextlib.suppress(Exception):
-            from jax._src import xla_bridge
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    add_xla_flag("xla_force_host_platform_device_count", n or 1)
 
-            if xla_bridge.backends_are_initialized():
-                return
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" not in flags:
-        n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n or 1}"
+
+def fast_cpu_loops_quietly() -> None:
+    """:func:`~stickslip_jax.xla_flags.fast_cpu_loops`, without its warning when JAX has
+    already started (a command called in-process, e.g. by the tests)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fast_cpu_loops()
 
 
 def setup_jax(*, all_cpu_cores: bool = False) -> None:
-    """float64 and a persistent compilation cache, so a second run skips compiling.
+    """float64, XLA's native compilation of small loops on a CPU
+    (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`), and a persistent compilation
+    cache, so a second run skips compiling.
 
     The cache lives in ``$STICKSLIP_CACHE_DIR`` (default ``~/.cache/stickslip_jax``);
     set ``STICKSLIP_CACHE_DIR=off`` to disable it. ``all_cpu_cores``: see
     :func:`use_all_cpu_cores` (for batched commands).
     """
+    fast_cpu_loops_quietly()
     if all_cpu_cores:
         use_all_cpu_cores()
     import jax
