@@ -59,7 +59,9 @@ What is timed
    z_ba_backward, zba_ratio), put into the Actuator with ``eqx.tree_at``:
    ``jax.jacfwd`` of the trace (T x 9), again with the 35 PI weights added (T x 44),
    and ``jax.grad`` of sum((q − q_target)²), q_target being the trace at θ·1.01,
-   with the default adjoint (``ForwardSensitivities``: the gradient as Jᵀ·c from
+   with the default adjoint (``ForwardSensitivities()``, which for nine parameters
+   with native CPU loops hands over to reverse mode: ``default_max_directions``),
+   with ``ForwardSensitivities(max_directions=64)`` (the gradient as Jᵀ·c from
    forward sensitivities) and with ``adjoint=CheckpointedScan()`` (plain reverse mode
    through the checkpointed scan).
    All jitted, compiled ahead of time (compile timed), timed interleaved with the
@@ -114,7 +116,11 @@ from numba import njit, prange  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 from stickslip_jax import fast_cpu_loops  # noqa: E402
-from stickslip_jax.adjoint import CheckpointedScan  # noqa: E402
+from stickslip_jax.adjoint import (  # noqa: E402
+    CheckpointedScan,
+    ForwardSensitivities,
+    default_max_directions,
+)
 from stickslip_jax.model.profiles import lu2015_slc1720  # noqa: E402
 from stickslip_jax.signals import sawtooth  # noqa: E402
 from stickslip_jax.simulate import DEFAULT_SUBSTEPS, simulate, simulate_batch  # noqa: E402
@@ -545,7 +551,9 @@ def default_loops_child(duration_s: float, substeps: int, repeats: int) -> dict:
     for fn in variants.values():
         jax.block_until_ready(fn())
     stats, _ = interleaved(variants, repeats)
-    stats["jax_batch17"]["per_recording_median_s"] = stats["jax_batch17"]["median_s"] / N_BATCH
+    batch = stats["jax_batch17"]
+    for stat in ("median", "min"):
+        batch[f"per_recording_{stat}_s"] = batch[f"{stat}_s"] / N_BATCH
     stats["XLA_FLAGS"] = os.environ.get("XLA_FLAGS")
     return stats
 
@@ -743,12 +751,17 @@ def run(args) -> dict:
 
     q_rev, _ = parameter_function(actuator, substeps, with_pi=False,
                                   adjoint=CheckpointedScan())
+    q_fs, _ = parameter_function(actuator, substeps, with_pi=False,
+                                 adjoint=ForwardSensitivities(max_directions=64))
 
     def loss(theta, u, target):
         return jnp.sum((q_phys(theta, u) - target) ** 2)
 
     def loss_rev(theta, u, target):
         return jnp.sum((q_rev(theta, u) - target) ** 2)
+
+    def loss_fs(theta, u, target):
+        return jnp.sum((q_fs(theta, u) - target) ** 2)
 
     deriv_comp = {}
     c_fwd, deriv_comp["forward"] = aot_compile(q_phys, theta_phys, u)
@@ -759,6 +772,8 @@ def run(args) -> dict:
         jax.jacfwd(loss), theta_phys, u, target)
     c_grev, deriv_comp["grad_phys_checkpointed_scan"] = aot_compile(
         jax.grad(loss_rev), theta_phys, u, target)
+    c_gfs, deriv_comp["grad_phys_forward_sensitivities"] = aot_compile(
+        jax.grad(loss_fs), theta_phys, u, target)
     dvariants = {
         "forward": lambda: c_fwd(theta_phys, u),
         "jacfwd_phys": lambda: c_jphys(theta_phys, u),
@@ -766,6 +781,7 @@ def run(args) -> dict:
         "grad_phys": lambda: c_grad(theta_phys, u, target),
         "grad_phys_forward_mode": lambda: c_gfwd(theta_phys, u, target),
         "grad_phys_checkpointed_scan": lambda: c_grev(theta_phys, u, target),
+        "grad_phys_forward_sensitivities": lambda: c_gfs(theta_phys, u, target),
     }
     deriv, douts = interleaved(dvariants, repeats)
     base = deriv["forward"]["median_s"]
@@ -777,11 +793,13 @@ def run(args) -> dict:
     deriv["grad_phys"]["value"] = np.asarray(douts["grad_phys"]).tolist()
     deriv["grad_phys"]["finite"] = bool(np.all(np.isfinite(np.asarray(douts["grad_phys"]))))
     g_default = np.asarray(douts["grad_phys"])
-    for other in ("grad_phys_forward_mode", "grad_phys_checkpointed_scan"):
+    for other in ("grad_phys_forward_mode", "grad_phys_checkpointed_scan",
+                  "grad_phys_forward_sensitivities"):
         g = np.asarray(douts[other])
         deriv[other]["max_rel_diff_vs_grad"] = float(
             np.max(np.abs(g - g_default)) / np.max(np.abs(g_default)))
     deriv["parameters"] = list(PHYSICAL)
+    deriv["default_adjoint_max_directions"] = default_max_directions()
     res["derivatives"] = deriv
 
     # --- 6. memory (run above, first) -------------------------------------------------------
@@ -875,6 +893,8 @@ def run(args) -> dict:
               "forward"),
         ratio("jax.grad with adjoint=CheckpointedScan() (reverse mode) / forward",
               "grad_phys_checkpointed_scan", "forward"),
+        ratio("jax.grad, ForwardSensitivities(max_directions=64) / forward",
+              "grad_phys_forward_sensitivities", "forward"),
         limit("worst compile time [s]", worst_compile[1], TARGETS["compile_s"],
               worst_compile[0]),
         limit("gradient memory, 10 s trace [MB]", mem_10s, TARGETS["grad_memory_10s_MB"],
@@ -951,9 +971,10 @@ def print_report(res: dict) -> None:
     print("-" * len(hdr))
     dl = {"forward": "forward q(θ)", "jacfwd_phys": "jacfwd, 9 physical parameters",
           "jacfwd_phys_pi": "jacfwd, 9 physical + 35 PI weights",
-          "grad_phys": "grad of sum((q - target)^2), 9 physical",
+          "grad_phys": "grad of sum((q - target)^2), 9 physical (default)",
           "grad_phys_forward_mode": "same gradient by jacfwd(loss) (info, forward mode)",
-          "grad_phys_checkpointed_scan": "grad, adjoint=CheckpointedScan() (reverse)"}
+          "grad_phys_checkpointed_scan": "grad, adjoint=CheckpointedScan() (reverse)",
+          "grad_phys_forward_sensitivities": "grad, ForwardSensitivities(max_directions=64)"}
     for key, label in dl.items():
         entry = d[key]
         print(f"{label:54s} {fmt_s(entry['median_s']):>9s} {fmt_s(entry['min_s']):>9s} "

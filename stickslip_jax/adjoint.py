@@ -1,19 +1,22 @@
 """How reverse-mode derivatives of a simulation are computed (the ``adjoint=`` option).
 
-Reverse mode through a long ``lax.scan`` of tiny scalar steps is slow on a CPU: the
-backward pass replays every checkpointed sample, then runs a transposed loop of many
-small operations (about 15 forward runs for the gradient over nine parameters of a
-1 s trace, measured by ``benchmarks/bench_simulator.py``). When only a few numbers are
-differentiated (the physical parameters, say), forward mode is cheaper: one pass that
-carries one tangent per parameter through the same loop gives every sensitivity
-dq/dθ, and a gradient is then a product with that Jacobian.
+Reverse mode through a long ``lax.scan`` of tiny scalar steps runs the sample loop
+forward, then a transposed loop of many small operations backwards. With XLA's
+default CPU loop compilation every one of those operations pays a kernel's overhead
+(a gradient over nine parameters of a 1 s trace cost 15-21 forward runs, measured by
+``benchmarks/bench_simulator.py``); there, when only a few numbers are
+differentiated, forward mode is cheaper: one pass that carries one tangent per
+parameter through the same loop gives every sensitivity dq/dθ, and a gradient is
+then a product with that Jacobian. With :func:`~stickslip_jax.xla_flags.fast_cpu_loops`
+(the CLI's, tests' and notebooks' setting) the loops compile natively, reverse mode
+costs about 3.5-5 forward runs whatever the number of parameters, and forward mode
+wins only for up to three (:func:`default_max_directions`).
 
 - :class:`ForwardSensitivities` (the default): the simulation gets a custom JVP whose
   tangent is ``J·t`` with ``J`` the dense Jacobian with respect to the *perturbed*
   inputs (found through JAX's symbolic zeros), built by one vmapped forward-mode pass.
   Its transpose, which ``jax.grad`` uses, is ``Jᵀ·c``: a gradient costs about as much
-  as a ``jax.jacfwd`` over the perturbed parameters (about 6 forward runs for nine
-  parameters against about 20 in reverse mode). ``jax.jacfwd`` and ``jax.linearize``
+  as a ``jax.jacfwd`` over the perturbed parameters. ``jax.jacfwd`` and ``jax.linearize``
   build ``J`` once, so they cost what they would without it. The recorded voltage
   keeps the ordinary derivative (a gradient with respect to thousands of samples is
   what reverse mode is for), and so does everything when more than ``max_directions``
@@ -46,6 +49,12 @@ def value_and_jacfwd(fn: Callable, x: jax.Array,
     directions) the derivatives along those rows instead, one column each."""
     if basis is None:
         basis = jnp.eye(x.size, dtype=x.dtype)
+    if basis.shape[0] == 1:
+        # One direction: a plain JVP. Under vmap every operation of the loop becomes a
+        # length-1 vector operation, which XLA's native CPU loops run about 2x slower
+        # (measured on a 1 s trace: 3.7 against 1.9 forward runs).
+        value, tangent = jax.jvp(fn, (x,), (basis[0],))
+        return value, tangent[..., None]
     return jax.vmap(lambda t: jax.jvp(fn, (x,), (t,)), out_axes=(None, -1))(basis)
 
 
@@ -55,6 +64,24 @@ class AbstractAdjoint(eqx.Module):
     def wrap(self, fn: Callable) -> Callable:
         """``fn(params, voltage) -> q`` with this adjoint's derivative rule."""
         raise NotImplementedError
+
+
+def default_max_directions() -> int:
+    """Where :class:`ForwardSensitivities` hands over to reverse mode, in perturbed scalars.
+
+    Measured on the benchmark trace (1 s, 25 kHz), ``jax.grad`` of a sum of squares as
+    multiples of one forward run: with XLA's default CPU loops reverse mode costs
+    15-21 and forward sensitivities about 6 for nine parameters, so forward wins up to
+    about 60 (64). With :func:`~stickslip_jax.xla_flags.fast_cpu_loops` both get
+    cheaper, reverse mode most (its many small kernels were the overhead): for 1, 2,
+    3, 4, 6 parameters forward sensitivities cost 3.0, 2.9, 3.5, 5.0, 6.7 and reverse
+    mode 3.4, 3.4, 3.5, 3.5, 4.9, so forward wins up to 3.
+    """
+    from .xla_flags import native_loops_requested
+
+    if jax.default_backend() == "cpu" and native_loops_requested():
+        return 3
+    return 64
 
 
 class CheckpointedScan(AbstractAdjoint):
@@ -68,14 +95,15 @@ class ForwardSensitivities(AbstractAdjoint):
     """Gradients from dense forward sensitivities of the perturbed parameters.
 
     ``max_directions``: above this many perturbed scalars the ordinary derivative is
-    used (forward mode's cost grows with them; about 60 is where reverse mode wins
-    on the benchmark trace).
+    used (forward mode's cost grows with them, reverse mode's does not). ``None``
+    (default): :func:`default_max_directions`, which depends on how XLA compiles the
+    simulator's loops.
     """
 
-    max_directions: int = eqx.field(static=True, default=64)
+    max_directions: int | None = eqx.field(static=True, default=None)
 
     def wrap(self, fn: Callable) -> Callable:
-        limit = self.max_directions
+        limit = default_max_directions() if self.max_directions is None else self.max_directions
 
         @jax.custom_jvp
         def wrapped(params, voltage):
