@@ -118,10 +118,19 @@ class ForwardSensitivities(AbstractAdjoint):
             voltage_live = not isinstance(t_voltage, SymbolicZero)
             n = sum(int(jnp.size(leaves[i])) for i in live)
             if n == 0 or n > limit:
-                dense = [jnp.zeros_like(p) if isinstance(t, SymbolicZero) else t
-                         for p, t in zip(leaves, t_leaves, strict=True)]
-                tv = jnp.zeros_like(voltage) if not voltage_live else t_voltage
-                return jax.jvp(fn, (params, voltage), (treedef.unflatten(dense), tv))
+                # The ordinary derivative, through the perturbed inputs only (dense zero
+                # tangents for the others would carry their tangent arithmetic along).
+                def of_perturbed(live_leaves, v):
+                    new = list(leaves)
+                    for i, leaf in zip(live, live_leaves, strict=True):
+                        new[i] = leaf
+                    return fn(treedef.unflatten(new), v)
+
+                primal = [leaves[i] for i in live]
+                tangent = [t_leaves[i] for i in live]
+                if voltage_live:
+                    return jax.jvp(of_perturbed, (primal, voltage), (tangent, t_voltage))
+                return jax.jvp(lambda p: of_perturbed(p, voltage), (primal,), (tangent,))
 
             x0 = jnp.concatenate([jnp.ravel(leaves[i]) for i in live])
 

@@ -75,3 +75,20 @@ def test_fast_cpu_loops_sets_the_threshold_in_a_fresh_process():
                          text=True, timeout=120, check=True).stdout.strip()
     assert out == ("True --xla_force_host_platform_device_count=2 "
                    "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=2048")
+
+
+def test_batching_and_adjoint_defaults_follow_the_loop_setting(monkeypatch):
+    import jax
+
+    from stickslip_jax.adjoint import default_max_directions
+    from stickslip_jax.simulate import default_batching
+
+    if jax.default_backend() != "cpu":
+        pytest.skip("the rule concerns the CPU backend")
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_extra_options="
+                       "xla_cpu_small_while_loop_byte_threshold=100000")
+    assert xla_flags.native_loops_requested()
+    assert default_batching() == "map" and default_max_directions() == 3
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    assert not xla_flags.native_loops_requested()
+    assert default_batching() == "vmap" and default_max_directions() == 64
