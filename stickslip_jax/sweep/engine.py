@@ -34,7 +34,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from ..model.actuator import Actuator
 from ..model.base import DriveContext
 from ..signals import DEFAULT_SAMPLE_RATE_HZ
-from ..simulate import DEFAULT_SUBSTEPS, rest_carry, sample_stepper
+from ..simulate import DEFAULT_SUBSTEPS, default_batching, rest_carry, sample_stepper
 from ..solvers import RK4, ExplicitRK
 from .grid import DriveGrid
 
@@ -75,12 +75,24 @@ def _rest(actuator, u0, drives):
 
 
 @eqx.filter_jit
-def _segment(actuator, carry, volts, dt, drives, substeps, solver):
+def _segment(actuator, carry, volts, dt, drives, substeps, solver, mesh=None):
+    """One segment of every slot. With ``mesh`` (CPU, native loops) each device runs its
+    own slots one after the other (``lax.map`` inside ``shard_map``), else one vmapped
+    scan over all slots (:func:`~stickslip_jax.simulate.default_batching` says why)."""
+
     def one(c, v, d):
         step = sample_stepper(actuator, dt, d, substeps, solver)
         return jax.lax.scan(step, c, (v[:-1], v[1:]))
 
-    return jax.vmap(one)(carry, volts, drives)
+    if mesh is None:
+        return jax.vmap(one)(carry, volts, drives)
+
+    def local(c, v, d):
+        return jax.lax.map(lambda args: one(*args), (c, v, d))
+
+    spec = PartitionSpec("points")
+    return jax.shard_map(local, mesh=mesh, in_specs=(spec, spec, spec),
+                         out_specs=(spec, spec))(carry, volts, drives)
 
 
 @eqx.filter_jit
@@ -136,7 +148,9 @@ def run_grid(actuator: Actuator, grid: DriveGrid, *, periods: int = 10,
     n_dev = len(devices)
     need = samples_needed(grid.frequency_Hz, periods, sample_rate_Hz)
     chunk = auto_chunk(need, n_dev, limit=chunk)
-    sharding = NamedSharding(Mesh(np.array(devices), ("points",)), PartitionSpec("points"))
+    mesh = Mesh(np.array(devices), ("points",))
+    sharding = NamedSharding(mesh, PartitionSpec("points"))
+    mapped = default_batching() == "map"
     reduce = reduce or (lambda i, q: q)
     order = list(np.argsort(-need, kind="stable"))  # longest first: packs the tail
     dt = jnp.asarray(1.0 / sample_rate_Hz)
@@ -183,7 +197,7 @@ def run_grid(actuator: Actuator, grid: DriveGrid, *, periods: int = 10,
         volts = sawtooth_samples(amp, freq, back, k, sample_rate_Hz)
         carry, q = _segment(actuator, carry, jax.device_put(jnp.asarray(volts), sharding), dt,
                             jax.device_put(_drives(amp, freq, back), sharding), substeps,
-                            solver)
+                            solver, mesh if mapped else None)
         segments_run += 1
         q = np.asarray(q)
         finished = []
