@@ -534,14 +534,19 @@ def run_memory_child(duration_s: float, substeps: int) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def default_loops_child(duration_s: float, substeps: int, repeats: int) -> dict:
-    """Forward timings with XLA's default loop compilation (run in a fresh process)."""
+def benchmark_trace(duration_s: float):
+    """The benchmark's actuator, voltage (numpy and JAX), its 17-row batch (numpy and
+    JAX) and the numba loops' parameters ``(scalars, thresholds, weights)``."""
     actuator = lu2015_slc1720()
     _, u_np = sawtooth(AMPLITUDE, FREQUENCY, duration_s=duration_s, sample_rate_Hz=FS)
-    u = jnp.asarray(u_np)
     ubatch_np = np.tile(u_np, (N_BATCH, 1))
-    ubatch = jnp.asarray(ubatch_np)
-    prm, r, w = reference_parameters(actuator)
+    return (actuator, u_np, jnp.asarray(u_np), ubatch_np, jnp.asarray(ubatch_np),
+            reference_parameters(actuator))
+
+
+def default_loops_child(duration_s: float, substeps: int, repeats: int) -> dict:
+    """Forward timings with XLA's default loop compilation (run in a fresh process)."""
+    actuator, u_np, u, _, ubatch, (prm, r, w) = benchmark_trace(duration_s)
     numba_plain(np.ascontiguousarray(u_np[:100]), DT, substeps, prm, r, w)
     variants = {
         "jax_single": lambda: simulate(actuator, u, dt=DT, substeps=substeps),
@@ -589,13 +594,8 @@ def run(args) -> dict:
     scipy_repeats = args.scipy_repeats or (1 if quick else 3)
     substeps = args.substeps
     mem_duration = 1.0 if quick else 10.0
-    actuator = lu2015_slc1720()
-    _, u_np = sawtooth(AMPLITUDE, FREQUENCY, duration_s=duration, sample_rate_Hz=FS)
+    actuator, u_np, u, ubatch_np, ubatch, (prm, r, w) = benchmark_trace(duration)
     n = len(u_np)
-    u = jnp.asarray(u_np)
-    ubatch_np = np.tile(u_np, (N_BATCH, 1))
-    ubatch = jnp.asarray(ubatch_np)
-    prm, r, w = reference_parameters(actuator)
     res: dict = {
         "config": {
             "trace": f"{AMPLITUDE:g} V {FREQUENCY:g} Hz forward sawtooth, lu2015_slc1720",

@@ -41,6 +41,8 @@ import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
+from .xla_flags import native_loops_requested
+
 
 def value_and_jacfwd(fn: Callable, x: jax.Array,
                      basis: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
@@ -77,8 +79,6 @@ def default_max_directions() -> int:
     3, 4, 6 parameters forward sensitivities cost 3.0, 2.9, 3.5, 5.0, 6.7 and reverse
     mode 3.4, 3.4, 3.5, 3.5, 4.9, so forward wins up to 3.
     """
-    from .xla_flags import native_loops_requested
-
     if jax.default_backend() == "cpu" and native_loops_requested():
         return 3
     return 64

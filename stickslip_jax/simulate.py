@@ -240,16 +240,26 @@ def default_batching() -> str:
     return "vmap"
 
 
+def checked_batching(batching: str | None) -> str:
+    """``batching`` ("map" or "vmap"), or :func:`default_batching` for None."""
+    batching = default_batching() if batching is None else batching
+    if batching not in ("map", "vmap"):
+        raise ValueError(f"batching must be 'map' or 'vmap', got {batching!r}")
+    return batching
+
+
+def over_rows(fn, rows, batching: str):
+    """``fn(*row)`` for every row of the pytree ``rows`` (leading axis), stacked:
+    one vmapped call (``"vmap"``) or the rows one after the other (``"map"``)."""
+    if batching == "vmap":
+        return jax.vmap(fn)(*rows)
+    return jax.lax.map(lambda row: fn(*row), rows)
+
+
 @partial(eqx.filter_jit)
 def _simulate_batch(actuator, voltages, dts, drives, substeps, solver, adjoint, batching):
-    if batching == "map":
-        return jax.lax.map(
-            lambda row: _simulate(actuator, *row, substeps, solver, adjoint),
-            (voltages, dts, drives),
-        )
-    return jax.vmap(_simulate, in_axes=(None, 0, 0, 0, None, None, None))(
-        actuator, voltages, dts, drives, substeps, solver, adjoint
-    )
+    return over_rows(lambda v, dt, d: _simulate(actuator, v, dt, d, substeps, solver, adjoint),
+                     (voltages, dts, drives), batching)
 
 
 def simulate_batch(
@@ -274,9 +284,7 @@ def simulate_batch(
     by repeating their last voltage sample; the padded tail of the output is simply
     ignored (the state before it is unaffected: the scan is causal).
     """
-    batching = default_batching() if batching is None else batching
-    if batching not in ("map", "vmap"):
-        raise ValueError(f"batching must be 'map' or 'vmap', got {batching!r}")
+    batching = checked_batching(batching)
     voltages = jnp.asarray(voltages, dtype=float)
     if voltages.ndim != 2 or voltages.shape[1] < 2:
         raise ValueError(f"voltages must be a (B, T) array with T ≥ 2, got {voltages.shape}")

@@ -34,7 +34,13 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from ..model.actuator import Actuator
 from ..model.base import DriveContext
 from ..signals import DEFAULT_SAMPLE_RATE_HZ
-from ..simulate import DEFAULT_SUBSTEPS, default_batching, rest_carry, sample_stepper
+from ..simulate import (
+    DEFAULT_SUBSTEPS,
+    default_batching,
+    over_rows,
+    rest_carry,
+    sample_stepper,
+)
 from ..solvers import RK4, ExplicitRK
 from .grid import DriveGrid
 
@@ -85,14 +91,11 @@ def _segment(actuator, carry, volts, dt, drives, substeps, solver, mesh=None):
         return jax.lax.scan(step, c, (v[:-1], v[1:]))
 
     if mesh is None:
-        return jax.vmap(one)(carry, volts, drives)
-
-    def local(c, v, d):
-        return jax.lax.map(lambda args: one(*args), (c, v, d))
-
+        return over_rows(one, (carry, volts, drives), "vmap")
     spec = PartitionSpec("points")
-    return jax.shard_map(local, mesh=mesh, in_specs=(spec, spec, spec),
-                         out_specs=(spec, spec))(carry, volts, drives)
+    return jax.shard_map(lambda *rows: over_rows(one, rows, "map"), mesh=mesh,
+                         in_specs=(spec, spec, spec), out_specs=(spec, spec))(
+        carry, volts, drives)
 
 
 @eqx.filter_jit
