@@ -58,6 +58,7 @@ What is timed
 5. Derivatives of q(θ) where θ = (Mp, Dp, Kp, Ms, Ds, rho0, z_ba_forward,
    z_ba_backward, zba_ratio), put into the Actuator with ``eqx.tree_at``:
    ``jax.jacfwd`` of the trace (T x 9), again with the 35 PI weights added (T x 44),
+   and over Mp alone and Mp, Dp, Kp (T x 1, T x 3: how the cost grows with columns),
    and ``jax.grad`` of sum((q − q_target)²), q_target being the trace at θ·1.01,
    with the default adjoint (``ForwardSensitivities()``, which for nine parameters
    with native CPU loops hands over to reverse mode: ``default_max_directions``),
@@ -425,22 +426,23 @@ def aot_compile(fn, *args) -> tuple[object, dict]:
     return compiled, {"lower_s": t1 - t0, "compile_s": t2 - t1, "total_s": t2 - t0}
 
 
-def parameter_function(actuator, substeps, *, with_pi: bool, adjoint=None):
-    """θ → q for the physical parameters (and the PI weights when ``with_pi``);
-    ``adjoint`` (default: the simulator's) is passed to ``simulate``."""
+def parameter_function(actuator, substeps, *, with_pi: bool, adjoint=None,
+                       count: int = len(PHYSICAL)):
+    """θ → q for the first ``count`` physical parameters (and the PI weights when
+    ``with_pi``); ``adjoint`` (default: the simulator's) is passed to ``simulate``."""
     extra = {} if adjoint is None else {"adjoint": adjoint}
 
     def leaves(a):
         out = (a.piezo.Mp, a.piezo.Dp, a.piezo.Kp, a.slider.Ms, a.slider.Ds, a.friction.rho0,
-               a.friction.z_ba_forward, a.friction.z_ba_backward, a.friction.zba_ratio)
+               a.friction.z_ba_forward, a.friction.z_ba_backward, a.friction.zba_ratio)[:count]
         return out + (a.hysteresis.weights,) if with_pi else out
 
     theta0 = jnp.concatenate([jnp.ravel(x) for x in leaves(actuator)])
 
     def q_of(theta, u):
-        values = tuple(theta[i] for i in range(len(PHYSICAL)))
+        values = tuple(theta[i] for i in range(count))
         if with_pi:
-            values = values + (theta[len(PHYSICAL):],)
+            values = values + (theta[count:],)
         return simulate(eqx.tree_at(leaves, actuator, values), u, dt=DT, substeps=substeps,
                         **extra)
 
@@ -747,6 +749,9 @@ def run(args) -> dict:
     log("derivatives ...")
     q_phys, theta_phys = parameter_function(actuator, substeps, with_pi=False)
     q_all, theta_all = parameter_function(actuator, substeps, with_pi=True)
+    # How the Jacobian's cost grows with its columns: Mp alone, then Mp, Dp, Kp.
+    q_one, theta_one = parameter_function(actuator, substeps, with_pi=False, count=1)
+    q_three, theta_three = parameter_function(actuator, substeps, with_pi=False, count=3)
     target = jax.block_until_ready(jax.jit(q_phys)(theta_phys * 1.01, u))
 
     q_rev, _ = parameter_function(actuator, substeps, with_pi=False,
@@ -767,6 +772,8 @@ def run(args) -> dict:
     c_fwd, deriv_comp["forward"] = aot_compile(q_phys, theta_phys, u)
     c_jphys, deriv_comp["jacfwd_phys"] = aot_compile(jax.jacfwd(q_phys), theta_phys, u)
     c_jall, deriv_comp["jacfwd_phys_pi"] = aot_compile(jax.jacfwd(q_all), theta_all, u)
+    c_j1, deriv_comp["jacfwd_1"] = aot_compile(jax.jacfwd(q_one), theta_one, u)
+    c_j3, deriv_comp["jacfwd_3"] = aot_compile(jax.jacfwd(q_three), theta_three, u)
     c_grad, deriv_comp["grad_phys"] = aot_compile(jax.grad(loss), theta_phys, u, target)
     c_gfwd, deriv_comp["grad_phys_forward_mode"] = aot_compile(
         jax.jacfwd(loss), theta_phys, u, target)
@@ -778,6 +785,8 @@ def run(args) -> dict:
         "forward": lambda: c_fwd(theta_phys, u),
         "jacfwd_phys": lambda: c_jphys(theta_phys, u),
         "jacfwd_phys_pi": lambda: c_jall(theta_all, u),
+        "jacfwd_1": lambda: c_j1(theta_one, u),
+        "jacfwd_3": lambda: c_j3(theta_three, u),
         "grad_phys": lambda: c_grad(theta_phys, u, target),
         "grad_phys_forward_mode": lambda: c_gfwd(theta_phys, u, target),
         "grad_phys_checkpointed_scan": lambda: c_grev(theta_phys, u, target),
@@ -887,6 +896,8 @@ def run(args) -> dict:
         ratio("jacfwd (9 physical) / forward", "jacfwd_phys", "forward",
               TARGETS["jacfwd_over_forward"]),
         ratio("jacfwd (9 physical + 35 PI weights) / forward", "jacfwd_phys_pi", "forward"),
+        ratio("jacfwd (Mp only) / forward", "jacfwd_1", "forward"),
+        ratio("jacfwd (Mp, Dp, Kp) / forward", "jacfwd_3", "forward"),
         ratio("grad (9 physical, jax.grad) / forward", "grad_phys", "forward",
               TARGETS["grad_over_forward"]),
         ratio("same gradient by forward mode (jacfwd of loss) / fwd", "grad_phys_forward_mode",
@@ -971,6 +982,8 @@ def print_report(res: dict) -> None:
     print("-" * len(hdr))
     dl = {"forward": "forward q(θ)", "jacfwd_phys": "jacfwd, 9 physical parameters",
           "jacfwd_phys_pi": "jacfwd, 9 physical + 35 PI weights",
+          "jacfwd_1": "jacfwd, Mp only (how the cost grows)",
+          "jacfwd_3": "jacfwd, Mp, Dp, Kp (how the cost grows)",
           "grad_phys": "grad of sum((q - target)^2), 9 physical (default)",
           "grad_phys_forward_mode": "same gradient by jacfwd(loss) (info, forward mode)",
           "grad_phys_checkpointed_scan": "grad, adjoint=CheckpointedScan() (reverse)",
