@@ -111,6 +111,8 @@ def main() -> None:
                     help="comma-separated independent variants, or 'all' (instead of sets)")
     ap.add_argument("--reduced", action="store_true",
                     help="variants on the tests' 8-recording protocol and settings")
+    ap.add_argument("--seed", type=int, default=9000,
+                    help="noise seed of the variants (variant i draws seed + 17 i)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     answers = json.loads((CONCEALED / "answers.json").read_text())["sets"]
@@ -123,10 +125,12 @@ def main() -> None:
     # The tests' settings on the reduced protocol (fewer, shorter refits).
     kw = dict(max_rounds=1, top=2, max_steps=20, size_at_most=3) if args.reduced else {}
     rows = []
-    for k, name in enumerate(chosen):
+    for name in chosen:
         print(f"== {name}", flush=True)
         if args.variants:
-            recs = variant_recordings(name, reduced=args.reduced, seed=9000 + 17 * k)
+            # The noise draw goes with the variant, whichever others run beside it.
+            seed = args.seed + 17 * list(VARIANTS).index(name)
+            recs = variant_recordings(name, reduced=args.reduced, seed=seed)
             row = run_set(name, from_profile=args.from_profile, recs=recs,
                           **{"max_rounds": args.max_rounds, **kw})
             row["hidden"] = f"{VARIANTS[name][0]} ({VARIANTS[name][1]})"

@@ -137,3 +137,24 @@ def test_a_polish_or_refit_short_of_its_optimum_is_said(base, tmp_path):
     assert refit[0].note.startswith("refit not converged: hit max_steps=1")
     md = report_markdown(diagnosis_dict(d), {}, tmp_path)
     assert "## Notes" in md and "Baseline polish: not converged" in md
+
+
+def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profile(base):
+    """The re-identification the diagnosis falls back on when the baseline bent to
+    mimic an effect: the paper's identification steps from the default profile with an
+    8 µs sensor delay attached at 1 µs and free in every step."""
+    from stickslip_jax.diagnose.catalogue import candidate
+    from stickslip_jax.diagnose.concealed import with_variant
+
+    specs = paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(100.0, 500.0),
+                           step_duration_s=0.03, sine_periods=2)
+    recs = simulate_set(with_variant(base, "delay_8us"), specs, noise_m=1e-9, seed=11)
+    entry = candidate("sensor_delay")
+    start, extra = entry.attach(ss.lu2015_slc1720(), 1e-6, entry.probes(base, {})[0])
+    ident = ss.identify(recs, init=start, fix={"Ms": 0.0247}, extra=extra,
+                        uncertainty=False)
+    assert ident.uncertainty is None
+    assert [s.free[-1] for s in ident.steps] == ["sensor_delay"] * 4
+    assert abs(float(ident.actuator.output_map.delay) - 8e-6) < 0.4e-6
+    floor = np.mean([1e-9 / np.ptp(r.position_m) for r in recs])
+    assert ident.nrmse.mean() < 1.3 * floor, (ident.nrmse.mean(), floor)

@@ -32,6 +32,15 @@
    it removes at least three quarters of the residual's squared excess over the noise
    (:data:`EXPLAINED_MIN`), or leaves a residual at the noise level. Entries whose
    ΔBIC comes within 10 % of the best are reported as indistinguishable from it.
+   When the baseline was identified here and no refit explains the residual, not
+   even a fallback one, the ``top`` entries showing promise are re-identified:
+   the identification steps before the joint one, from ``init`` with the entry
+   attached (at its refitted or sized values) and free in every step, then the
+   refit. The identification can bend the paper's model to mimic a large effect (an
+   8 µs sensor delay: Mp 12x off) into a valley a refit from the bent baseline does
+   not leave; a re-identification whose staged steps cost less than the identified
+   baseline before its polish is refitted, and replaces the entry's refit when it
+   ends lower.
    Repeat until no entry is accepted.
 5. If a structured residual remains that no entry explains, fit the data-driven
    correction (:class:`~stickslip_jax.model.extensions.LearnedForce`, sparse
@@ -398,6 +407,43 @@ def _fallback_refits(ranked: list[CandidateResult]) -> list[CandidateResult]:
     return [r for r in waiting if not r.note]
 
 
+def _any_explains(ranked: list[CandidateResult]) -> bool:
+    """Some refitted entry of ``ranked`` would be accepted (ΔBIC and share)."""
+    return any(r.refitted and _explains(r) and r.criterion_delta < BIC_MIN for r in ranked)
+
+
+def _reidentify_order(ranked: list[CandidateResult], top: int) -> list[CandidateResult]:
+    """The entries re-identified when no refit explained the residual: the ``top`` of
+    ``ranked`` (best first) that :func:`_shows_promise`.
+    (delay_8us from the profile, two noise draws: the delay ranked first and second by
+    its score, fourth by the cost after the refits from the bent baseline; a rate lag
+    that mimics part of a delay, refitted to 1.12e6 from 1.53e6, re-identified to 3.0e5
+    and was named when the delay was not re-identified.)"""
+    return [r for r in ranked if _shows_promise(r)][:top]
+
+
+def _entry_on(init: Actuator, fitted: Actuator, slot: str) -> Actuator:
+    """``init`` with the entry that ``fitted`` (the baseline plus the entry, refitted)
+    carries in ``slot``: the entry's component with its refitted values, every baseline
+    quantity from ``init``."""
+    if slot == "output_map":
+        return eqx.tree_at(lambda a: a.output_map, init, fitted.output_map)
+    if slot == "input_stage":
+        return eqx.tree_at(lambda a: a.input_stage, init, fitted.input_stage)
+    if slot == "extension":
+        for ext in fitted.extensions[len(init.extensions):]:
+            init = init.with_extension(ext)
+        return init
+    if slot == "slider":
+        return eqx.tree_at(lambda a: a.slider.F_ext, init, fitted.slider.F_ext)
+    if slot == "friction":
+        f, g = fitted.friction, init.friction
+        f = eqx.tree_at(lambda f: (f.rho0, f.z_ba_forward, f.z_ba_backward), f,
+                        (g.rho0, g.z_ba_forward, g.z_ba_backward))
+        return eqx.tree_at(lambda a: a.friction, init, f)
+    raise ValueError(f"unknown slot {slot!r}")
+
+
 def _why_not_refitted(r: CandidateResult, ranked: list[CandidateResult], top: int,
                       excess: float | None = None) -> str:
     """The note of a sized entry that got no refit (``ranked``: best first; ``excess``
@@ -555,6 +601,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     say(f"[baseline] NRMSE {100 * nrmse0.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
         f"{len(mismatch)} recording(s) flagged; residual peaks {hints['peaks_Hz']}")
 
+    # Identification steps a re-identification with an entry attached repeats (the
+    # refit that follows is the joint step).
+    staged = [st for st in identify_steps if st != "joint"]
     pool = [c for c in CATALOGUE if candidates is None or c.name in candidates]
     not_testable = {}
     for c in pool:
@@ -637,46 +686,94 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                         key=lambda r: -_rank_value(r))
         excess = max(rss - n_obs, 1e-9)
 
-        def refit(res, pool=pool, sized=sized, rss=rss, nrmse_now=nrmse_now, excess=excess):
-            cand = next(c for c in pool if c.name == res.name)
-            t0 = time.perf_counter()
-            start, specs = sized[res.name]
-            try:
-                fitted, rss_new, out = problem.fit(start, base_names + list(specs), specs,
-                                                   label=f"refit {cand.name}",
-                                                   max_steps=max_steps)
-            except ValueError as err:  # no valid start (e.g. a PI loop at the edge)
-                res.note = f"refit not possible: {err}"
-                say(f"[refit {cand.name}] {res.note}")
-                return
-            nrmse_new = problem.nrmse_from_whitened(out.residual)
+        def record(res, fitted, out, specs, t0, rss=rss, nrmse_now=nrmse_now,
+                   excess=excess):
+            rss_new = float(out.cost_end)
             k = sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values())
             res.refitted = True
             res.actuator = fitted
             res.params = {n: float(np.asarray(s.getter(fitted))) for n, s in specs.items()}
             res.rss_before, res.rss_after = rss, rss_new
-            res.nrmse_before, res.nrmse_after = nrmse_now, float(nrmse_new.mean())
+            res.nrmse_before = nrmse_now
+            res.nrmse_after = float(problem.nrmse_from_whitened(out.residual).mean())
             res.criterion_delta = rss_new - rss + k * np.log(n_obs)
             # Share of the excess over the noise; undefined when the residual is
             # already at the noise level (then only the criterion and (e/σ)² speak).
             res.explained = (rss - rss_new) / excess if excess > 0.01 * n_obs else np.nan
             res.chi2_after = rss_new / n_obs
-            res.wall_s = time.perf_counter() - t0
-            if not out.converged:
-                # Its ΔBIC is an upper bound: more steps could only lower the cost.
-                res.note = f"refit {out.message}"
+            res.wall_s += time.perf_counter() - t0
+            # Not converged: its ΔBIC is an upper bound (more steps could only lower it).
+            res.note = "" if out.converged else f"refit {out.message}"
+
+        def refit(res, pool=pool, sized=sized):
+            cand = next(c for c in pool if c.name == res.name)
+            t0 = time.perf_counter()
+            start, specs = sized[res.name]
+            try:
+                fitted, _, out = problem.fit(start, base_names + list(specs), specs,
+                                             label=f"refit {cand.name}",
+                                             max_steps=max_steps)
+            except ValueError as err:  # no valid start (e.g. a PI loop at the edge)
+                res.note = f"refit not possible: {err}"
+                say(f"[refit {cand.name}] {res.note}")
+                return
+            record(res, fitted, out, specs, t0)
+
+        def reidentify(res, bar, pool=pool, sized=sized):
+            # The identification bends the paper's model to mimic a large effect (an
+            # 8 µs delay: Mp 12x off), a valley a refit from the bent baseline does not
+            # leave in its steps; the staged steps with the entry free find the other.
+            cand = next(c for c in pool if c.name == res.name)
+            t0 = time.perf_counter()
+            source, specs = sized[res.name]
+            if res.actuator is not None:
+                source = res.actuator  # the entry's values after its refit
+            try:
+                ident = identify(data.recordings, init=_entry_on(init, source, cand.slot),
+                                 fix=fix, steps=staged, extra=specs, max_steps=60,
+                                 uncertainty=False)
+                rss_staged = problem.evaluate(ident.actuator)[0]
+            except ValueError as err:
+                say(f"[re-identify {cand.name}] not possible: {err}")
+                return
+            say(f"[re-identify {cand.name}] {', '.join(staged)} with the entry free: "
+                f"cost {rss_staged:.5g} against the identified baseline's {bar:.5g} "
+                f"(before its polish), {time.perf_counter() - t0:.1f} s")
+            if not rss_staged < bar:
+                res.wall_s += time.perf_counter() - t0
+                return  # the entry did not help the staged steps
+            fitted, _, out = problem.fit(ident.actuator, base_names + list(specs), specs,
+                                         label=f"refit {cand.name} (re-identified)",
+                                         max_steps=max_steps)
+            if not out.cost_end >= res.rss_after:  # also when not refitted (nan)
+                record(res, fitted, out, specs, t0)
+                res.note = "; ".join(filter(None, [
+                    "re-identified: the staged identification from the start with the "
+                    "entry free, then the refit", res.note]))
+            else:
+                res.wall_s += time.perf_counter() - t0
 
         # The leader-alone rule needs an excess over the noise to take shares of.
         above_noise = excess if excess > 0.01 * n_obs else None
         for res in _first_refits(ranked, top, above_noise):
             refit(res)
-        if not any(r.refitted and _explains(r) and r.criterion_delta < BIC_MIN
-                   for r in ranked):
+        if not _any_explains(ranked):
             # The first-order ranking misleads when the baseline absorbed much of a
             # large effect (seen: a slew-limited drive ranked below a constant load
             # that mimics part of it): the other sized entries get their refit too.
             for res in _fallback_refits(ranked):
                 refit(res)
+        if staged and rnd == 0 and not _any_explains(ranked):
+            # The baseline may have bent to mimic the effect (see reidentify).
+            t0 = time.perf_counter()
+            # The bar: the identified baseline's cost before its polish (the staged
+            # steps stop short of a joint fit; seen: an 8 µs delay re-identified to
+            # 9.7e6 from a start at 1e-10 s and refitted from there to the noise, 2.3e4,
+            # the bent baseline 1.3e7 before its polish and 1.5e6 after it).
+            bar = max(rss, problem.evaluate(unpolished)[0])
+            for res in _reidentify_order(ranked, top):
+                reidentify(res, bar)
+            timings["reidentify_s"] = time.perf_counter() - t0
         for res in ranked:
             if not res.refitted and not res.note:
                 res.note = _why_not_refitted(res, ranked, top, above_noise)

@@ -34,7 +34,7 @@ from .initial import (
     scale_pi_quasistatic,
     scale_to_step_mode,
 )
-from .parameters import SCALE_INVARIANT, ParameterMap, _getter
+from .parameters import SCALE_INVARIANT, ParameterMap, ParameterSpec, _getter
 from .residuals import DEFAULT_W_PSD, TraceResiduals, nrmse_per_recording, simulate_dataset
 from .solve import SolveResult, solve_least_squares
 from .uncertainty import Uncertainty, parameter_uncertainty
@@ -108,6 +108,8 @@ def identify(
     fit_rho1: bool = False,
     max_steps: int = 60,
     w_psd: float = DEFAULT_W_PSD,
+    extra: dict[str, ParameterSpec] | None = None,
+    uncertainty: bool = True,
     echo: Callable[[str], None] | None = None,
 ) -> Identification:
     """Identify an actuator from recordings (see the module docstring).
@@ -117,8 +119,13 @@ def identify(
     run, in that order; ``n_pi`` play operators over the recorded voltage range;
     ``free_ratio`` also fits ``zba_ratio``; ``fit_rho1`` also fits ``rho1``; ``w_psd``
     weight of the step-response log-PSD term (see :class:`TraceResiduals`);
-    ``echo`` receives progress lines.
+    ``extra`` quantities of a model extension already in ``init`` (name → spec), fitted
+    in every step beside that step's own (the diagnosis re-identifies a baseline with
+    an entry attached); ``uncertainty`` False skips the parameter uncertainty (one
+    Jacobian on every recording unless the joint step ran last); ``echo`` receives
+    progress lines.
     """
+    extra = dict(extra or {})
     say = echo or (lambda s: None)
     fix = dict(fix or {})
     unknown = [s for s in steps if s not in STEPS]
@@ -185,6 +192,7 @@ def identify(
         if name not in steps:
             continue
         keep, free, weights = plan[name]
+        free = free + list(extra)
         subset = [r for r in data.recordings if keep(r)]
         # Only directions present in the data can be fitted.
         if name in ("friction", "joint"):
@@ -197,7 +205,7 @@ def identify(
             say(f"[{name}] skipped ({reports[-1].note})")
             continue
         sub = Dataset.from_recordings(subset)
-        pmap = ParameterMap.make(act, free)
+        pmap = ParameterMap.make(act, free, extra)
         res = TraceResiduals(pmap, sub, **weights)
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=name,
@@ -211,8 +219,12 @@ def identify(
         reports.append(StepReport(name, [r.name for r in subset], free, out, before, after))
         last = (res, out)
 
+    if not uncertainty:
+        q_sim = np.asarray(eqx.filter_jit(lambda a: simulate_dataset(a, data))(act))
+        return Identification(act, reports, data, nrmse_per_recording(q_sim, data), None,
+                              notes, q_sim, fix)
     # Final evaluation and uncertainty on every recording with every fitted quantity.
-    free_all = free_dynamics() + ["pi_weights"] + free_friction()
+    free_all = free_dynamics() + ["pi_weights"] + free_friction() + list(extra)
     t0 = time.perf_counter()
     if (last is not None and len(last[0].data) == len(data)
             and list(last[0].pmap.names) == free_all):
@@ -225,7 +237,8 @@ def identify(
         resid = res.in_metres_rows(out.residual)
     else:
         say("[uncertainty] Jacobian at the optimum...")
-        final = TraceResiduals(ParameterMap.make(act, free_all), data, in_metres=True)
+        final = TraceResiduals(ParameterMap.make(act, free_all, extra), data,
+                               in_metres=True)
         pmap, theta = final.pmap, final.pmap.zeros()
         jac = np.asarray(jax.jit(jax.jacfwd(final))(theta))
         resid = np.asarray(final(theta))
