@@ -17,6 +17,7 @@ from stickslip_jax.diagnose.run import (
     _entry_on,
     _fallback_refits,
     _first_refits,
+    _identification_bent,
     _reidentify_order,
     _why_not_refitted,
     _worth_sizing_after_acceptance,
@@ -168,6 +169,18 @@ def test_the_entries_re_identified_are_the_top_of_the_ranking_that_show_promise(
         "sensor_delay", "stribeck", "sensor_drift"]
     # Never one whose score and sizing both point the wrong way.
     assert [r.name for r in _reidentify_order(ranked[-1:], top=3)] == []
+
+
+def test_only_a_baseline_the_polish_moved_far_is_re_identified():
+    # Identified → polished costs: delay_8us (two noise draws) 2.3787e6 → 7.9952e5 and
+    # 1.3462e7 → 1.5335e6; set_03 3.1249e5 → 2.2961e5, set_10 8.7478e7 → 6.4406e7,
+    # interferometer_periodic 92 094 → 81 325.
+    assert _identification_bent(2.3787e6, 7.9952e5)
+    assert _identification_bent(1.3462e7, 1.5335e6)
+    assert not _identification_bent(3.1249e5, 2.2961e5)
+    assert not _identification_bent(8.7478e7, 6.4406e7)
+    assert not _identification_bent(92_094.0, 81_325.0)
+    assert not _identification_bent(float("nan"), 1.0)
 
 
 def _two_actuators():

@@ -36,7 +36,8 @@ def _evidence(c) -> dict:
     return {"score_statistic": c.score, "probe": c.probe, "sizing_drop": c.size_drop,
             "explained_share_of_excess": _finite(c.explained),
             "chi2_per_sample_after": _finite(c.chi2_after),
-            "indistinguishable_from": list(c.indistinguishable_from)}
+            "indistinguishable_from": list(c.indistinguishable_from),
+            "note": c.note}
 
 
 def diagnosis_dict(d: Diagnosis) -> dict:
