@@ -180,6 +180,11 @@ def test_uncertainty_matches_the_linear_regression_formula_and_flags_null_direct
     degenerate = np.stack([x, x, np.ones_like(x)], axis=1)  # a and b enter only as a + b
     unc2 = parameter_uncertainty(degenerate, resid, np.eye(3), np.ones(3), ["a", "b", "c"])
     assert list(unc2.determined) == [False, False, True]
+    # A non-finite Jacobian (an overflowed simulation) determines nothing, no error.
+    jac[3, 1] = np.nan
+    unc3 = parameter_uncertainty(jac, resid, np.eye(2), np.array([1.0, 2.0]), ["a", "b"])
+    assert not unc3.determined.any() and np.isinf(unc3.std_errors).all()
+    assert unc3.as_dict()["a"]["std_error"] is None
 
 
 def test_regimes_of_the_fixture_set(fixtures_dir):

@@ -56,6 +56,12 @@ def parameter_uncertainty(jac: np.ndarray, residual: np.ndarray, value_jac: np.n
     n = n if n_obs is None else n_obs
     dof = max(n - p, 1)
     sigma2 = float(np.sum(residual**2) / dof)
+    if not (np.all(np.isfinite(jac)) and np.isfinite(sigma2)):
+        # A simulation that overflowed at the optimum (e.g. a diverging extension):
+        # nothing can be said about any parameter; the SVD would not converge.
+        return Uncertainty(list(labels), np.asarray(values), np.full(p, np.inf),
+                           np.full((p, p), np.nan), np.zeros(p, dtype=bool),
+                           float(np.sqrt(sigma2)), dof)
     u, s, vt = np.linalg.svd(jac, full_matrices=False)
     keep = s > rcond * s[0] if s.size and s[0] > 0 else np.zeros_like(s, dtype=bool)
     inv_s2 = np.where(keep, 1.0 / np.where(keep, s, 1.0) ** 2, 0.0)
