@@ -158,3 +158,10 @@ def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profil
     assert abs(float(ident.actuator.output_map.delay) - 8e-6) < 0.4e-6
     floor = np.mean([1e-9 / np.ptp(r.position_m) for r in recs])
     assert ident.nrmse.mean() < 1.3 * floor, (ident.nrmse.mean(), floor)
+    # The diagnosis costs the identification's own outputs instead of simulating again.
+    from stickslip_jax.diagnose.run import _Problem
+    from stickslip_jax.identify.dataset import Dataset
+
+    problem = _Problem(Dataset.from_recordings(recs), np.full(len(recs), 1e-9), {}, None)
+    np.testing.assert_allclose(problem.cost_of_output(ident.actuator, ident.q_sim),
+                               problem.evaluate(ident.actuator)[0], rtol=1e-12)

@@ -230,6 +230,12 @@ class _Problem:
         r = np.asarray(r)
         return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
 
+    def cost_of_output(self, act: Actuator, q) -> float:
+        """Whitened RSS of outputs ``q`` (B, T) [m] already simulated for ``act``."""
+        res = self.residuals(ParameterMap.make(act, []))
+        r = np.asarray(res.whiten(res.inner.from_output(jnp.asarray(q))))
+        return float(r @ r)
+
     def nrmse_from_whitened(self, r) -> np.ndarray:
         """NRMSE per recording [-] from a whitened residual vector (no simulation)."""
         d = self.data
@@ -748,7 +754,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                 ident = identify(data.recordings, init=_entry_on(init, source, cand.slot),
                                  fix=fix, steps=staged, extra=specs, max_steps=60,
                                  uncertainty=False)
-                rss_staged = problem.evaluate(ident.actuator)[0]
+                rss_staged = problem.cost_of_output(ident.actuator, ident.q_sim)
             except ValueError as err:
                 say(f"[re-identify {cand.name}] not possible: {err}")
                 return
