@@ -139,6 +139,22 @@ def test_a_polish_or_refit_short_of_its_optimum_is_said(base, tmp_path):
     assert "## Notes" in md and "Baseline polish: not converged" in md
 
 
+def test_work_past_the_time_budget_is_skipped_and_said(base):
+    """The first refits always run; a fallback refit that would end past the budget is
+    skipped, with a note on the entry and in the diagnosis."""
+    recs = reduced_set(base, "sensor_delay")[2:7]
+    d = diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(),
+                 candidates=["creep", "external_load", "viscous_friction"], max_rounds=1,
+                 top=1, max_steps=1, fallback=False, time_budget_s=1e-3)
+    refitted = [r for r in d.rounds[0] if r.refitted]
+    skipped = [r for r in d.rounds[0] if r.note.startswith("skipped: it would end past")]
+    assert len(refitted) == 1 and not refitted[0].accepted  # the leader, a wrong entry
+    assert skipped and not skipped[0].refitted
+    assert any(n.startswith(f"Time budget 0.001 s: skipped refit {skipped[0].name}")
+               for n in d.notes), d.notes
+    assert d.verdict == "unexplained residual"
+
+
 def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profile(base):
     """The re-identification the diagnosis falls back on when the baseline bent to
     mimic an effect: the paper's identification steps from the default profile with an

@@ -13,12 +13,15 @@ from stickslip_jax.diagnose.run import (
     LATER_SCORE_SHARE,
     LEADER_ALONE_LEAD,
     LEADER_ALONE_SHARE,
+    SECOND_LOOK_CHI2,
     CandidateResult,
     _entry_on,
     _fallback_refits,
+    _far_from_noise,
     _first_refits,
     _identification_bent,
     _reidentify_order,
+    _second_look,
     _why_not_refitted,
     _worth_sizing_after_acceptance,
 )
@@ -221,3 +224,33 @@ def test_a_re_identification_starts_from_the_start_with_only_the_entry_moved():
                  "rate_dependent_hysteresis", "drive_bandwidth", "structural_mode",
                  "sensor_delay", "sensor_drift", "external_load"):
         _entry_on(init, fitted, candidate(name).slot)
+
+
+def test_a_seeded_entry_gets_a_second_look_when_the_explaining_refit_leaves_structure():
+    # drive_two_pole_mild from the profile (noise seed 9017, 24 000 samples): baseline
+    # whitened RSS 1.42e6; the rate lag refitted to 1.5769e5, 90 % of the excess but
+    # (e/σ)² = 6.6; the amplifier (seeded), score -2.38e4, sized to 1.398e6, was
+    # never refitted and the rate lag was named.
+    n, base = 24_000, 1.42e6
+    rate, mode, amp = _ranked(("rate_dependent_hysteresis", 2.77e5, base - 1.2207e6),
+                              ("structural_mode", 3.39e4, base - 1.3232e6),
+                              ("drive_bandwidth", -2.38e4, base - 1.398e6))
+    rate.refitted, rate.rss_after, rate.chi2_after = True, 1.5769e5, 1.5769e5 / n
+    rate.explained, rate.criterion_delta = (base - 1.5769e5) / (base - n), -1.26e6
+    ranked = [rate, mode, amp]
+    assert _far_from_noise(ranked, n)
+    assert [r.name for r in _second_look(ranked, {"drive_bandwidth"})] == ["drive_bandwidth"]
+    # An explaining refit near the noise leaves nothing to look for.
+    rate.chi2_after = SECOND_LOOK_CHI2 - 0.01
+    assert not _far_from_noise(ranked, n)
+    rate.chi2_after = 1.5769e5 / n
+    # Only refits that would be accepted count (ΔBIC, share explained).
+    rate.criterion_delta = 5.0
+    assert not _far_from_noise(ranked, n)
+    rate.criterion_delta, rate.explained = -1.26e6, 0.5
+    assert not _far_from_noise(ranked, n)
+    # A seeded entry already refitted, or pointing the wrong way twice, gets none.
+    amp.refitted = True
+    assert _second_look(ranked, {"drive_bandwidth"}) == []
+    amp.refitted, amp.size_drop = False, -1e4
+    assert _second_look(ranked, {"drive_bandwidth"}) == []

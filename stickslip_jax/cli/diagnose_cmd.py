@@ -10,6 +10,10 @@ import typer
 from .common import fail, reported_errors, setup_jax
 from .identify_cmd import _parse_fix
 
+TIME_BUDGET_S = 540.0
+"""--time-budget's default: diagnose.budget.DEFAULT_TIME_BUDGET_S (not imported here, as
+that would start JAX before :func:`~.common.setup_jax` sets its flags)."""
+
 EPILOG = """Examples:
 
   stickslip diagnose fixtures/concealed/set_03 --out out/diag --fix Ms=0.0247
@@ -45,6 +49,9 @@ def diagnose_command(
                                   "refit."),
     no_fallback: bool = typer.Option(False, "--no-fallback", help="Do not fit the learned "
                                      "correction when no entry explains the residual."),
+    time_budget: float = typer.Option(TIME_BUDGET_S, "--time-budget", help="Seconds the diagnosis "
+                                      "may take: optional refits that would end past it are "
+                                      "skipped, and the notes say which; 0: no limit."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
     force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),
 ) -> None:
@@ -66,6 +73,8 @@ def diagnose_command(
             raise fail(f"--candidates: unknown entr(y/ies) {bad}; choose from {', '.join(NAMES)}")
         if max_rounds < 1 or top < 1 or max_steps < 1:
             raise fail("--max-rounds, --top and --max-steps must be at least 1")
+        if time_budget < 0:
+            raise fail("--time-budget must be 0 (no limit) or a number of seconds")
         if skip_identify and params is None:
             raise fail("--skip-identify needs --params (the identified baseline)")
         fixed = _parse_fix(fix)
@@ -82,6 +91,7 @@ def diagnose_command(
                               ("dynamics", "hysteresis", "friction", "joint"),
                               candidates=chosen, max_rounds=max_rounds, top=top,
                               max_steps=max_steps, fallback=not no_fallback,
+                              time_budget_s=time_budget,
                               echo=lambda s: typer.echo(s, err=True))
         except ValueError as err:
             raise fail(str(err)) from None
