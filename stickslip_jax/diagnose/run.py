@@ -51,6 +51,12 @@
 5. If a structured residual remains that no entry explains, fit the data-driven
    correction (:class:`~stickslip_jax.model.extensions.LearnedForce`, sparse
    regression) and report it as ``unexplained`` with what it depends on.
+
+A time budget (:mod:`.budget`, ``time_budget_s``) bounds the run: the baseline, the
+scores, the sizings, round one's first refits and the learned correction always run;
+fallback refits, second looks, re-identifications and later rounds are skipped when
+their estimated duration would end past it (time is kept for the learned correction
+while nothing is accepted), and the entries' notes and the diagnosis's notes say so.
 """
 
 from __future__ import annotations
