@@ -7,12 +7,9 @@ from pathlib import Path
 
 import typer
 
+from ..diagnose.budget import DEFAULT_TIME_BUDGET_S
 from .common import fail, reported_errors, setup_jax
 from .identify_cmd import _parse_fix
-
-TIME_BUDGET_S = 540.0
-"""--time-budget's default: diagnose.budget.DEFAULT_TIME_BUDGET_S (not imported here, as
-that would start JAX before :func:`~.common.setup_jax` sets its flags)."""
 
 EPILOG = """Examples:
 
@@ -49,9 +46,10 @@ def diagnose_command(
                                   "refit."),
     no_fallback: bool = typer.Option(False, "--no-fallback", help="Do not fit the learned "
                                      "correction when no entry explains the residual."),
-    time_budget: float = typer.Option(TIME_BUDGET_S, "--time-budget", help="Seconds the diagnosis "
-                                      "may take: optional refits that would end past it are "
-                                      "skipped, and the notes say which; 0: no limit."),
+    time_budget: float = typer.Option(
+        DEFAULT_TIME_BUDGET_S, "--time-budget", help="Seconds the diagnosis may take: "
+        "optional refits that would end past it are skipped, and the notes say which; "
+        "0: no limit."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
     force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),
 ) -> None:

@@ -45,14 +45,12 @@ class Budget:
         """A refit's expected duration [s]: the longest seen so far of its kind (with or
         without a drive stage), else the other kind's scaled by
         :data:`DRIVE_STAGE_FACTOR`, else :data:`REFIT_GUESS_S` (scaled alike)."""
-        same, other = self.refit_walls[drive_stage], self.refit_walls[not drive_stage]
-        if same:
-            return max(same)
-        base = max(other) if other else (REFIT_GUESS_S if not drive_stage
-                                        else REFIT_GUESS_S * DRIVE_STAGE_FACTOR)
-        if not other:
-            return base
-        return base * DRIVE_STAGE_FACTOR if drive_stage else base / DRIVE_STAGE_FACTOR
+        factor = {False: 1.0, True: DRIVE_STAGE_FACTOR}
+        if self.refit_walls[drive_stage]:
+            return max(self.refit_walls[drive_stage])
+        other = self.refit_walls[not drive_stage]
+        plain = max(other) / factor[not drive_stage] if other else REFIT_GUESS_S
+        return plain * factor[drive_stage]
 
     def learned_estimate(self) -> float:
         """The learned correction's expected duration [s]: two fits of the baseline and

@@ -384,6 +384,18 @@ def _best_seed(problem: _Problem, act: Actuator, base_names: list[str], cand: Ca
     return best
 
 
+def _size_best(problem: _Problem, name: str, starts):
+    """Size an entry from each ``(tag, start, specs)`` of ``starts`` (its own parameters,
+    the baseline held): ``(cost, sized actuator, specs)`` of the lowest, or None."""
+    best = None
+    for tag, start, specs in starts:
+        label = f"size {name} ({tag})" if tag else f"size {name}"
+        sized, cost, _ = problem.fit(start, list(specs), specs, label=label, max_steps=15)
+        if best is None or cost < best[0]:
+            best = (cost, sized, specs)
+    return best
+
+
 def _rank_value(r: CandidateResult) -> float:
     """What the refit order goes by: the larger of the score and the sizing's drop."""
     return max(r.score, r.size_drop)
@@ -728,43 +740,26 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                 continue
             cand = next(c for c in pool if c.name == res.name)
             _, strength, probe, shift = scores[res.name]
+            # Round one sizes on the baseline before its polish too (the polish can
+            # bend the baseline to mimic part of an effect, a local optimum the joint
+            # refit may not leave); the better sizing is kept.
+            before_polish = rnd == 0 and unpolished is not act
             if res.name in has_seeds and res.score < 0:
-                # The linearisation points the wrong way: start from the cheapest seed,
-                # on the polished baseline and (round one) on the baseline before its
-                # polish, which bends to mimic the effect; keep the better sizing.
-                best_sized = None
-                for on, tag in ((act, "seed"), (unpolished, "seed, unpolished")):
-                    if on is unpolished and (rnd > 0 or unpolished is act):
-                        continue
-                    seeded = _best_seed(problem, on, base_names, cand)
-                    if seeded is None:
-                        continue
-                    _, start, specs = seeded
-                    start, rss_size, _ = problem.fit(start, list(specs), specs,
-                                                     label=f"size {cand.name} ({tag})",
-                                                     max_steps=15)
-                    if best_sized is None or rss_size < best_sized[0]:
-                        best_sized = (rss_size, start, specs)
-                if best_sized is None:
-                    continue
-                rss_size, start, specs = best_sized
-                res.size_drop = rss - rss_size
-                sized[res.name] = (start, specs)
+                # The linearisation points the wrong way: start from the cheapest seed.
+                bases = [(act, "seed")] + ([(unpolished, "seed, unpolished")]
+                                           if before_polish else [])
+                starts = [(tag, *seeded[1:]) for on, tag in bases
+                          if (seeded := _best_seed(problem, on, base_names, cand))]
+            else:
+                starts = [("", *_first_order_start(problem, act, base_names, cand,
+                                                   strength, probe, shift))]
+                if before_polish:
+                    starts.append(("unpolished",
+                                   *cand.attach(unpolished, 0.25 * strength, probe)))
+            best_sized = _size_best(problem, cand.name, starts)
+            if best_sized is None:
                 continue
-            start, specs = _first_order_start(problem, act, base_names, cand, strength,
-                                              probe, shift)
-            start, rss_size, _ = problem.fit(start, list(specs), specs,
-                                             label=f"size {cand.name}", max_steps=15)
-            if rnd == 0 and unpolished is not act:
-                # The baseline polish can bend the baseline to mimic part of an effect
-                # (a local optimum the joint refit may not leave); size the entry on
-                # the start of the polish too and keep the better.
-                alt, alt_specs = cand.attach(unpolished, 0.25 * strength, probe)
-                alt, rss_alt, _ = problem.fit(alt, list(alt_specs), alt_specs,
-                                              label=f"size {cand.name} (unpolished)",
-                                              max_steps=15)
-                if rss_alt < rss_size:
-                    start, rss_size, specs = alt, rss_alt, alt_specs
+            rss_size, start, specs = best_sized
             res.size_drop = rss - rss_size
             sized[res.name] = (start, specs)
         ranked = sorted([r for r in results if r.name in sized],
