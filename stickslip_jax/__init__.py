@@ -13,13 +13,12 @@ does both for you)::
 
 from .adjoint import AbstractAdjoint, CheckpointedScan, ForwardSensitivities
 from .diagnose import CATALOGUE, Diagnosis, diagnose
+from .drive_inference import DriveInfo, infer_drive
 from .files import InputOverwriteError, OutputExistsError
 from .identify import HysteresisOnlyModel, Identification, fit_hysteresis_only, identify
 from .io import (
-    DriveInfo,
     Recording,
     RecordingError,
-    infer_drive,
     load_recording,
     load_recordings,
     save_recording,

@@ -20,7 +20,8 @@ import math
 
 import numpy as np
 
-from stickslip_jax.io import DIRECTIONS, WAVEFORMS, Recording, format_meta_number
+from stickslip_jax.drive_inference import DIRECTIONS, WAVEFORMS
+from stickslip_jax.io import Recording, format_meta_number
 
 __all__ = ["make_recording", "sawtooth", "sine", "step"]
 

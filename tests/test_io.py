@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from stickslip_jax import signals
+from stickslip_jax.drive_inference import WAVEFORMS, DriveInfo, infer_drive
 from stickslip_jax.files import (
     InputOverwriteError,
     OutputExistsError,
@@ -30,11 +31,8 @@ from stickslip_jax.files import (
 )
 from stickslip_jax.io import (
     MIN_ROWS,
-    WAVEFORMS,
-    DriveInfo,
     Recording,
     RecordingError,
-    infer_drive,
     load_recording,
     load_recordings,
     save_recording,
