@@ -86,7 +86,7 @@ class NumbaProblem:
         return self.simulate_params({**self.fixed, **s, "pi_weights": w})
 
     def simulate_params(self, p: dict):
-        """Every recording simulated from a MODEL.md parameter dict (its own PI)."""
+        """Every recording simulated from a parameter dict of docs/model.md (its own PI)."""
         prms = np.array([(p["Mp"], p["Dp"], p["Kp"], p["Kact2"] * p["N"], p["Ms"], p["Ds"],
                           p["F_ext"], p["k_load"], p["rho0"], p["rho1"], p["rho2"],
                           p["z_ba_backward"] if back else p["z_ba_forward"], p["zba_ratio"])

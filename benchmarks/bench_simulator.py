@@ -1,6 +1,6 @@
 """Speed, accuracy, derivative cost and memory of the stickslip_jax simulator.
 
-One run, one trace: 1 s at 25 kHz of a 40 V, 50 Hz forward sawtooth (MODEL.md), the
+One run, one trace: 1 s at 25 kHz of a 40 V, 50 Hz forward sawtooth (docs/model.md), the
 default profile ``lu2015_slc1720()``, RK4 with ``--substeps`` sub-steps per sample.
 Everything is float64. Usage (see benchmarks/README.md)::
 
@@ -14,7 +14,7 @@ What is timed
    wall-clock medians and minima. Compile time two ways: first call minus the steady
    median (after ``jax.clear_caches()``), and ``jax.jit(...).lower(...)`` /
    ``.compile()`` timed separately. The persistent compilation cache is off.
-2. numba references, written from MODEL.md, not from the JAX code:
+2. numba references, written from docs/model.md, not from the JAX code:
 
    - *plain*: the contract's scheme as a scalar loop. Per RK4 sub-step the voltage
      is the first-order hold at each stage time, the PI output is evaluated with the
@@ -169,7 +169,7 @@ def reference_parameters(actuator) -> tuple[tuple[float, ...], np.ndarray, np.nd
 # ---------------------------------------------------------------------------------
 @njit(inline="always")
 def _nb_field(x1, v1, x2, v2, z, g, prm):
-    """MODEL.md right-hand side for stroke ``g`` [m]; ``prm`` as reference_parameters."""
+    """Right-hand side (docs/model.md) for stroke ``g`` [m]; ``prm`` as reference_parameters."""
     mp, dp, kp, f_pre, ms, ds, f_ext, k_load, rho0, rho1, rho2, z_ba, ratio = prm
     zss = z_ba / ratio
     xdot = v1 - v2
@@ -374,7 +374,7 @@ def scipy_one_call(u, dt, prm, r, w, method):
 # helpers
 # ---------------------------------------------------------------------------------
 def nrmse(q, ref) -> float:
-    """RMS of q − ref over the peak-to-peak of ref (MODEL.md "Fit quality", c = 0)."""
+    """RMS of q − ref over the peak-to-peak of ref (docs/model.md "Fit quality", c = 0)."""
     q, ref = np.asarray(q), np.asarray(ref)
     return float(np.sqrt(np.mean((q - ref) ** 2)) / np.ptp(ref))
 

@@ -155,7 +155,7 @@ plt.show()
 # %% [markdown]
 # The mode frequencies of the default profile and the paper's measured ones differ
 # a little: the paper's table and its spectrum are not mutually consistent (see
-# MODEL.md and `ss.spectrum_consistency`); the profile keeps the table's values.
+# docs/model.md and `ss.spectrum_consistency`); the profile keeps the table's values.
 
 # %%
 print(ss.spectrum_consistency(595.0, 1633.0, 725.0))

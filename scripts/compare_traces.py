@@ -1,4 +1,4 @@
-"""Print the NRMSE of each simulated trace against its recording (MODEL.md "Fit quality").
+"""Print the NRMSE of each simulated trace against its recording (docs/model.md "Fit quality").
 
 Usage: python scripts/compare_traces.py RECORDING_DIR SIMULATION_DIR
 (simulations are named <recording>.sim.csv).

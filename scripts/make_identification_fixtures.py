@@ -26,7 +26,7 @@ OUT = Path(__file__).resolve().parent.parent / "fixtures" / "identification"
 
 
 def truth_params() -> dict:
-    """The documented truth of the identification fixtures (MODEL.md names, SI)."""
+    """The documented truth of the identification fixtures (docs/model.md names, SI)."""
     p = ss.params_from_actuator(ss.lu2015_slc1720())
     r = np.asarray(p["pi_thresholds"])
     tail = np.exp(-r[1:] / 12.0)

@@ -35,7 +35,7 @@ class DriveInfo:
     waveform:
         ``"sawtooth"``, ``"sine"``, ``"step"`` or ``"other"``.
     amplitude_V:
-        Amplitude ``A`` [V] as MODEL.md defines it per waveform (sawtooth: the size
+        Amplitude ``A`` [V] as docs/model.md defines it per waveform (sawtooth: the size
         of the ramp, not the peak sample; sine: the peak of ``(A/2)(1 − cos)``; step:
         the level after the step), or None when unknown.
     frequency_Hz:
@@ -74,7 +74,7 @@ class DriveInfo:
 
 
 def infer_drive(time_s: np.ndarray, voltage_V: np.ndarray, *, rtol: float = 1e-3) -> DriveInfo:
-    """Recognise the drive waveform from the sampled voltage (MODEL.md definitions).
+    """Recognise the drive from the sampled voltage (docs/model.md "Drives and recordings").
 
     Parameters
     ----------

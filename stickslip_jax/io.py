@@ -1,4 +1,4 @@
-"""Recordings: read, check and write experiment files (MODEL.md, "Recordings: the file contract").
+"""Recordings: read, check and write experiment files (docs/model.md, "Recording files").
 
 A recording is one experiment: the drive voltage and the measured output sampled on
 a uniform time grid. On disk it is a CSV file::
@@ -58,7 +58,7 @@ PathLike = str | os.PathLike[str]
 
 #: Accepted position units, as units per metre: metres = value / POSITION_UNITS[unit].
 POSITION_UNITS: dict[str, float] = {"m": 1.0, "um": 1e6, "nm": 1e9}
-#: Fewest samples a recording may hold (MODEL.md).
+#: Fewest samples a recording may hold (docs/model.md "Recording files").
 MIN_ROWS = 16
 #: Every sample interval must be within this of the median interval, relatively.
 UNIFORM_RTOL = 1e-6
@@ -804,7 +804,7 @@ def _recording_files(folder: Path) -> list[Path]:
 def load_recordings(
     paths: PathLike | Sequence[PathLike], *, require_output: bool = True
 ) -> list[Recording]:
-    """Read a set of recordings: files and/or folders (MODEL.md: "a folder of such files").
+    """Read a set of recordings: files and/or folders (docs/model.md "Recording files").
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
 """Linearised stick dynamics: modes, antiresonance and frequency response.
 
 While the contact sticks (``|z| ≤ z_ba``, so ``α = 0`` and ``ż = ẋ``) the model of
-MODEL.md is a linear two-degree-of-freedom chain driven by the free stroke Γ [m]:
+docs/model.md is a linear two-degree-of-freedom chain driven by the free stroke Γ [m]:
 
     Mp·ẍ1 + Dp·ẋ1 + Kp·x1 + kc·(x1 − x2) + cc·(ẋ1 − ẋ2) = Kp·Γ
     Ms·ẍ2 + Ds·ẋ2 + k_load·x2 − kc·(x1 − x2) − cc·(ẋ1 − ẋ2) = 0

@@ -1,4 +1,4 @@
-"""Parameter files (MODEL.md "Parameter files") ↔ :class:`Actuator`.
+"""Parameter files (docs/model.md "Parameter files") ↔ :class:`Actuator`.
 
 JSON, one object, SI values. Unknown names are errors, never silently ignored;
 masses, stiffnesses and break-away displacements must be positive.
@@ -122,7 +122,7 @@ def allowed_names(friction: str = "elastoplastic") -> tuple[str, ...]:
 
 
 def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None) -> Actuator:
-    """Build an :class:`Actuator` from a MODEL.md parameter dictionary (SI units)."""
+    """Build an :class:`Actuator` from a parameter dictionary (docs/model.md) (SI units)."""
     if not isinstance(params, Mapping):
         raise ParameterError("a parameter file must hold one JSON object.", source=source)
     friction = params.get("friction", "elastoplastic") or "elastoplastic"
@@ -145,7 +145,7 @@ def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None
         missing.append("z_ba (or both z_ba_forward and z_ba_backward)")
     if missing:
         raise ParameterError(f"missing required parameter(s): {', '.join(missing)}.",
-                             source=source, fix="add them (SI units, see MODEL.md).")
+                             source=source, fix="add them (SI units, see docs/model.md).")
 
     num = {}
     for k in ("Mp", "Kp", "Ms"):
@@ -225,7 +225,7 @@ def _friction_from_params(params, friction, source):
 
 
 def params_from_actuator(actuator: Actuator) -> dict[str, Any]:
-    """The MODEL.md parameter dictionary of an actuator (SI units, JSON-ready)."""
+    """The parameter dictionary (docs/model.md) of an actuator (SI units, JSON-ready)."""
     p, s, h, f = actuator.piezo, actuator.slider, actuator.hysteresis, actuator.friction
     out: dict[str, Any] = {
         "Mp": float(p.Mp), "Dp": float(p.Dp), "Kp": float(p.Kp),

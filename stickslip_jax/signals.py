@@ -1,4 +1,4 @@
-"""Drive-voltage generators, exactly as MODEL.md ("Operating modes and recordings") defines them.
+"""Drive-voltage generators, exactly as docs/model.md ("Drives and recordings") defines them.
 
 All generators sample at ``t_k = k/fs``, ``k = 0 .. round(duration_s·fs) − 1``, and
 return ``(t, U)``: time [s] and voltage [V], float64 arrays.
@@ -71,7 +71,7 @@ def sawtooth(
     duration_s: float,
     sample_rate_Hz: float = DEFAULT_SAMPLE_RATE_HZ,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sawtooth drive (MODEL.md): forward ``A·frac(f·t)``, backward ``A − A·frac(f·t)``.
+    """Sawtooth drive (docs/model.md): forward ``A·frac(f·t)``, backward ``A − A·frac(f·t)``.
 
     Parameters
     ----------
@@ -109,7 +109,7 @@ def sine(
     duration_s: float,
     sample_rate_Hz: float = DEFAULT_SAMPLE_RATE_HZ,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Raised-cosine drive ``U = (A/2)·(1 − cos 2πf·t)``, from 0 to ``A`` (MODEL.md).
+    """Raised-cosine drive ``U = (A/2)·(1 − cos 2πf·t)``, from 0 to ``A`` (docs/model.md).
 
     Parameters
     ----------
@@ -143,7 +143,7 @@ def step(
     duration_s: float,
     sample_rate_Hz: float = DEFAULT_SAMPLE_RATE_HZ,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Step drive: ``U = A`` from ``t0`` on, 0 before (MODEL.md).
+    """Step drive: ``U = A`` from ``t0`` on, 0 before (docs/model.md).
 
     Parameters
     ----------

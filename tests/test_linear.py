@@ -1,7 +1,7 @@
 """The linearised stick dynamics, the paper's table/spectrum disagreement, and a check
 of the linear analysis against the nonlinear simulator.
 
-MODEL.md: the printed table of Lu 2015 (read in SI) puts the modes at about
+docs/model.md: the printed table of Lu 2015 (read in SI) puts the modes at about
 520-560 Hz (damped/undamped) and 17 kHz and the q = x1 + x2 antiresonance at
 sqrt(2·rho0/Ms)/(2π) ≈ 849 Hz, not at the printed 595 Hz, 1633 Hz and 725 Hz; and no
 positive undamped chain has that printed spectrum at all. Measured here:
@@ -46,7 +46,7 @@ def test_default_profile_modes_are_not_the_printed_spectrum(actuator):
     np.testing.assert_allclose(m.undamped_Hz, [563.8655, 17458.41], rtol=1e-3)
     np.testing.assert_allclose(m.damped_Hz, [523.3196, 16717.92], rtol=1e-3)
     np.testing.assert_allclose(m.damping_ratio, [0.3724, 0.2881], rtol=2e-3)
-    # MODEL.md: first mode ~520-560 Hz (damped/undamped), second ~17 kHz.
+    # docs/model.md: first mode ~520-560 Hz (damped/undamped), second ~17 kHz.
     assert 520.0 < m.damped_Hz[0] < m.undamped_Hz[0] < 600.0
     assert m.undamped_Hz[1] > 10_000.0 and m.damped_Hz[1] > 10_000.0
     # The undamped q zero is sqrt(2·rho0/Ms)/(2π) ≈ 849 Hz.

@@ -1,4 +1,4 @@
-"""Unit checks of the model's components against MODEL.md, by hand-computed values and
+"""Unit checks of the model's components against docs/model.md, by hand-computed values and
 independent re-implementations of the contract's formulas."""
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def test_play_operator_matches_max_min_form():
     p = np.clip(0.0, u_seq[0] - r, u_seq[0] + r)
     m = pi.initial_memory(jnp.asarray(u_seq[0]))
     for u in u_seq[1:]:
-        p = np.maximum(u - r, np.minimum(u + r, p))      # MODEL.md, literally
+        p = np.maximum(u - r, np.minimum(u + r, p))      # docs/model.md, literally
         m = pi.update(m, jnp.asarray(u))
         np.testing.assert_allclose(m, p, rtol=0, atol=1e-12)
         assert float(pi.output(m, jnp.asarray(u))) == pytest.approx(float(w @ p), rel=1e-13)
@@ -99,7 +99,7 @@ def test_transition_alpha_ratio_one_is_a_step():
 
 
 def _zrate_contract(z, xdot, zba, zss_mag):
-    """MODEL.md, literally: ż = ẋ·(1 − α·z/z_ss(ẋ)), z_ss = sgn(ẋ)·|z_ss|."""
+    """docs/model.md, literally: ż = ẋ·(1 − α·z/z_ss(ẋ)), z_ss = sgn(ẋ)·|z_ss|."""
     out = np.empty(np.broadcast(z, xdot).shape)
     for idx, (zi, vi) in enumerate(zip(*np.broadcast_arrays(z, xdot), strict=True)):
         if vi == 0.0:
@@ -223,7 +223,7 @@ def test_force_signs_and_momentum_balance():
     assert float(s.acceleration(1e-6, 0.0, 0.0)) == pytest.approx((0.05 - 1e-3) / float(s.Ms))
     assert float(ss.Slider.gravity(0.01, 1.0).F_ext) == pytest.approx(-0.01 * 9.80665)
     assert float(ss.Slider.gravity(0.01, 1.0, upward_is_positive=False).F_ext) > 0
-    # Friction pushes the slider along +Ff and the piezo along −Ff (MODEL.md).
+    # Friction pushes the slider along +Ff and the piezo along −Ff (docs/model.md).
     rng = np.random.default_rng(3)
     for _ in range(20):
         y = jnp.asarray(rng.normal(size=5) * np.array([1e-7, 1e-3, 1e-7, 1e-3, 1e-7]))

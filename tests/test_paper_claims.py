@@ -168,7 +168,7 @@ def test_stepping_direction_amplitude_asymmetry(default_runs, f):
 # --------------------------------------------------------------------------------------
 # (c) Lu §III-C: constant positive z_ss.
 #
-# With MODEL.md's conventions x = x1 − x2 and the slider moving +x on a forward
+# With the conventions of docs/model.md, x = x1 − x2 and the slider moving +x on a forward
 # sawtooth, the slip with ẋ < 0 (the "negative direction" of the proof) is the flyback
 # of the FORWARD sawtooth (piezo retracts, slider coasts), and the backward sawtooth
 # slips with ẋ > 0. So a constant positive z_ss corrupts the forward drive here and

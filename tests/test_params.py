@@ -1,4 +1,4 @@
-"""Parameter files: the MODEL.md contract, clear refusals, exact round trip."""
+"""Parameter files: the docs/model.md contract, clear refusals, exact round trip."""
 
 import json
 

@@ -25,7 +25,7 @@ and figures/. Exit codes: 0 done (whatever the verdict); 2 bad input.
 
 
 def diagnose_command(
-    data: list[Path] = typer.Argument(..., help="Recording files and/or folders (MODEL.md "
+    data: list[Path] = typer.Argument(..., help="Recording files and/or folders (docs/model.md "
                                       "CSV or NPZ, with a position column)."),
     out: Path = typer.Option(..., "--out", help="Output folder for diagnosis.json, "
                              "report.md and figures/."),

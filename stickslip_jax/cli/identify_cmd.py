@@ -45,7 +45,7 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
 
 
 def identify_command(
-    data: list[Path] = typer.Argument(..., help="Recording files and/or folders (MODEL.md "
+    data: list[Path] = typer.Argument(..., help="Recording files and/or folders (docs/model.md "
                                       "CSV or NPZ, with a position column)."),
     out: Path = typer.Option(..., "--out", help="Output folder for params.json, fit.json "
                              "and figures/."),

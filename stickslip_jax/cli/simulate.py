@@ -39,7 +39,7 @@ EPILOG = """Examples:
 def simulate_command(
     out: Path = typer.Option(..., "--out", help="Output recording (.csv or .npz)."),
     params: Path | None = typer.Option(
-        None, "--params", help="Parameter JSON (MODEL.md names, SI). Default: the "
+        None, "--params", help="Parameter JSON (docs/model.md names, SI). Default: the "
         "lu2015_slc1720 profile."),
     voltage_from: Path | None = typer.Option(
         None, "--voltage-from", help="Drive the model with this recording's voltage; "

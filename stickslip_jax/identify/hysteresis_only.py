@@ -48,7 +48,8 @@ class HysteresisOnlyModel(eqx.Module):
 
 
 def nrmse(y_model, y_measured) -> float:
-    """RMS of the residual over the peak-to-peak of the measurement [-] (MODEL.md)."""
+    """RMS of the residual over the peak-to-peak of the measurement [-]
+    (docs/model.md "Fit quality")."""
     y_model, y_measured = np.asarray(y_model), np.asarray(y_measured)
     return float(np.sqrt(np.mean((y_model - y_measured) ** 2)) / np.ptp(y_measured))
 

@@ -1,6 +1,6 @@
 """Write an identification to a folder: params.json, fit.json and the figures.
 
-``params.json`` follows the parameter contract of MODEL.md, so ``stickslip simulate
+``params.json`` follows the parameter contract of docs/model.md, so ``stickslip simulate
 --params`` loads it. When any step did not converge it is written as
 ``params.unconverged.json`` instead: a result that is not trustworthy must not sit
 where a good one is expected.

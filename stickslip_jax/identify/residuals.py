@@ -1,7 +1,7 @@
 """Residual vectors for least squares: time traces, step-response PSD, step lengths.
 
 Every term is scaled so that a recording's contribution is comparable with its
-NRMSE (MODEL.md "Fit quality"): the sum of squares of the time-domain term over a
+NRMSE (docs/model.md "Fit quality"): the sum of squares of the time-domain term over a
 set is Σ_recordings NRMSE², with the best constant offset of each recording removed
 analytically (the interferometer's zero is arbitrary).
 """
