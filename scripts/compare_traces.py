@@ -1,9 +1,13 @@
 """Print the NRMSE of each simulated trace against its recording (docs/model.md "Fit quality").
 
-Usage: python scripts/compare_traces.py RECORDING_DIR SIMULATION_DIR
-(simulations are named <recording>.sim.csv).
+Usage: python scripts/compare_traces.py RECORDING_DIR SIMULATION_DIR [--plot]
+(simulations are named <recording>.sim.csv). With ``--plot`` it also draws each pair
+to SIMULATION_DIR/<recording>.png, labelled as the conformance traces of
+fixtures/reference are: a reference from an independent implementation, not a
+measurement (noiseless, so the residual panel has no noise band).
 """
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -11,17 +15,32 @@ import numpy as np
 
 from stickslip_jax.io import load_recording
 
+REFERENCE_LABEL = "reference (independent implementation)"
 
-def main(rec_dir: str, sim_dir: str) -> int:
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rec_dir", type=Path)
+    ap.add_argument("sim_dir", type=Path)
+    ap.add_argument("--plot", action="store_true",
+                    help="also draw SIM_DIR/<recording>.png (reference vs simulated)")
+    args = ap.parse_args(argv)
     rows = []
-    for rec_path in sorted(Path(rec_dir).glob("*.csv")):
-        sim_path = Path(sim_dir) / f"{rec_path.stem}.sim.csv"
+    for rec_path in sorted(args.rec_dir.glob("*.csv")):
+        sim_path = args.sim_dir / f"{rec_path.stem}.sim.csv"
         if not sim_path.exists():
             continue
-        meas = load_recording(rec_path).position_m
+        ref = load_recording(rec_path)
         sim = load_recording(sim_path).position_m
-        nrmse = np.sqrt(np.mean((sim - meas) ** 2)) / np.ptp(meas)
+        nrmse = np.sqrt(np.mean((sim - ref.position_m) ** 2)) / np.ptp(ref.position_m)
         rows.append((rec_path.stem, nrmse))
+        if args.plot:
+            from stickslip_jax.plots import plot_trace
+
+            plot_trace(ref.time_s, ref.voltage_V, sim, q_meas_m=ref.position_m, noise_m=0.0,
+                       meas_label=REFERENCE_LABEL,
+                       title=f"{ref.name}: NRMSE {100 * nrmse:.4f} % against the reference",
+                       path=args.sim_dir / f"{rec_path.stem}.png")
     print(f"{'recording':28s} NRMSE [%]")
     for name, value in rows:
         print(f"{name:28s} {100 * value:.4f}")
@@ -29,4 +48,4 @@ def main(rec_dir: str, sim_dir: str) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(*sys.argv[1:3]))
+    sys.exit(main())

@@ -11,9 +11,10 @@ mkdir -p "$OUT"
 for rec in fixtures/reference/ref_*.csv; do
   name=$(basename "$rec" .csv)
   "$BIN/stickslip" simulate --params fixtures/reference/params.json --voltage-from "$rec" \
-    --out "$OUT/$name.sim.csv" --plot "$OUT/$name.png" --force
+    --out "$OUT/$name.sim.csv" --force
 done
-"$BIN/python" scripts/compare_traces.py fixtures/reference "$OUT"
+# NRMSE per trace, and $OUT/<name>.png: reference (independent implementation) vs simulated
+"$BIN/python" scripts/compare_traces.py fixtures/reference "$OUT" --plot
 
 echo
 echo "== identify fixtures/identification (about 2 minutes on two cores) =="

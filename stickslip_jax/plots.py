@@ -39,24 +39,59 @@ def save_figure(fig, path: str | Path) -> Path:
     return path
 
 
-def plot_trace(time_s, voltage_V, q_sim_m, *, q_meas_m=None, title: str = "", path=None):
-    """Voltage and output against time; measured output overlaid when given.
+def plot_trace(time_s, voltage_V, q_sim_m, *, q_meas_m=None, noise_m=None,
+               meas_label: str = "measured", title: str = "", path=None):
+    """Voltage and output against time; with a measured output, also the residual.
 
     ``time_s`` [s], ``voltage_V`` [V], ``q_sim_m`` and ``q_meas_m`` [m] (plotted in µm).
+    The measured trace is drawn first, wide and light, and the simulated one on top,
+    thin and dashed, so both stay visible where they agree. With ``q_meas_m`` a third
+    panel shows ``q_sim − q_meas`` [nm] less its mean (the best constant offset of
+    docs/model.md "Fit quality") with the ±1σ band of the sensor noise: ``noise_m``
+    [m] when given (e.g. ``stickslip_jax.noise.noise_sigma`` of the recording), 0 for
+    no band (a noiseless reference), None to estimate σ from the measured trace's
+    third differences. ``meas_label`` names the compared trace in the legend.
     Returns the figure, or writes it to ``path`` and returns the path.
     """
+    from .noise import sigma_from_differences
+
     t_ms = np.asarray(time_s) * 1e3
-    fig, (ax_u, ax_q) = subplots(2, 1, sharex=True, figsize=(8, 5),
+    q_sim = np.asarray(q_sim_m, dtype=float)
+    if q_meas_m is None:
+        fig, (ax_u, ax_q) = subplots(2, 1, sharex=True, figsize=(8, 5),
                                      gridspec_kw={"height_ratios": [1, 2]})
+    else:
+        fig, (ax_u, ax_q, ax_r) = subplots(3, 1, sharex=True, figsize=(8, 6.6),
+                                           gridspec_kw={"height_ratios": [1, 2, 1.4]})
     ax_u.plot(t_ms, voltage_V, color="tab:gray", lw=0.8)
     ax_u.set_ylabel("U [V]")
     if q_meas_m is not None:
-        ax_q.plot(t_ms, np.asarray(q_meas_m) * 1e6, color="k", lw=0.8, label="measured")
-    ax_q.plot(t_ms, np.asarray(q_sim_m) * 1e6, color="tab:blue", lw=0.9, label="simulated")
-    ax_q.set_xlabel("time [ms]")
+        q_meas = np.asarray(q_meas_m, dtype=float)
+        ax_q.plot(t_ms, q_meas * 1e6, color="0.55", lw=2.6, alpha=0.8, zorder=1,
+                  solid_capstyle="butt", label=meas_label)
+    ax_q.plot(t_ms, q_sim * 1e6, color="tab:blue", lw=0.9, ls=(0, (4, 2)), zorder=3,
+              label="simulated")
     ax_q.set_ylabel("q = x1 + x2 [µm]")
-    if q_meas_m is not None:
+    if q_meas_m is None:
+        ax_q.set_xlabel("time [ms]")
+    else:
         ax_q.legend(loc="best", fontsize=8)
+        resid = q_sim - q_meas
+        resid = resid - resid.mean()
+        sigma = sigma_from_differences(q_meas) if noise_m is None else float(noise_m)
+        if sigma > 0:
+            how = "estimated from the trace" if noise_m is None else "noise floor"
+            ax_r.axhspan(-sigma * 1e9, sigma * 1e9, color="tab:orange", alpha=0.25, lw=0,
+                         zorder=1, label=f"±1σ sensor noise, σ = {sigma * 1e9:.3g} nm ({how})")
+        rms = float(np.sqrt(np.mean(resid**2)))
+        ax_r.plot(t_ms, resid * 1e9, color="tab:blue", lw=0.6, zorder=2,
+                  label=f"simulated − {meas_label.split(' (')[0]}, offset removed "
+                        f"(RMS {rms * 1e9:.3g} nm)")
+        ax_r.axhline(0.0, color="k", lw=0.5, zorder=1)
+        ax_r.set_ylabel("residual [nm]")
+        ax_r.set_xlabel("time [ms]")
+        ax_r.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, fontsize=7,
+                    frameon=False, borderaxespad=0.1)
     if title:
         ax_u.set_title(title, fontsize=10)
     fig.align_ylabels()

@@ -158,6 +158,7 @@ def write_figures(result, fig_dir: Path, *, force: bool = False) -> dict[str, Pa
         shift = np.mean(rec.position_m - q)  # show the model on the recording's zero
         out[f"overlay_{rec.name}"] = plot_trace(
             rec.time_s, rec.voltage_V, q + shift, q_meas_m=rec.position_m,
+            noise_m=noise_sigma(rec),
             title=f"{rec.name}: NRMSE {100 * float(result.nrmse[recs.index(rec)]):.3f} %",
             path=target(f"overlay_{rec.name}.png"))
     steps = _pick(recs, sims, "step")
