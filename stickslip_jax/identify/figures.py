@@ -13,28 +13,69 @@ import numpy as np
 from ..plots import colormap, save_figure, subplots
 from .dataset import period_ends, step_lengths
 from .initial import stroke_along
-from .residuals import log_psd
+from .residuals import _psd
 
 
 def _finish(fig, path):
     return save_figure(fig, path) if path is not None else fig
 
 
+def display_psd(x, dt: float, *, band=(20.0, 12_500.0), period_samples: float | None = None,
+                per_octave: int = 12):
+    """A PSD [m²/Hz] to look at, averaged over log-spaced bands.
+
+    ``x`` [m] sampled every ``dt`` [s]. A periodic drive (``period_samples`` given, ≥ 2)
+    gets a Welch estimate (``scipy.signal.welch``: Hann window, half-overlapping
+    segments of a whole number of periods, about half the trace each, linear trend of
+    each removed), so that the harmonics fall on bins. A transient (a step response)
+    gets one Hann periodogram of the whole trace, as the identification's spectral
+    term does (segments would cut the transient and the window would hide it).
+    Then the mean over bands of 1/``per_octave`` octave within ``band`` [Hz]: a
+    periodic drive's comb of harmonics fills the upper decades of a log-frequency axis
+    solid, and its band means show the envelope instead (power per band over the band
+    width, so a white floor keeps its level). Bands holding no bin are left out.
+    Returns ``(band centres [Hz], PSD [m²/Hz])``.
+    """
+    x = np.asarray(x, dtype=float)
+    if period_samples is not None and period_samples >= 2 and x.size >= 2 * period_samples:
+        from scipy.signal import welch
+
+        periods = max(int((x.size // 2) // period_samples), 1)
+        seg = int(round(periods * period_samples))
+        f, psd = welch(x, fs=1.0 / dt, window="hann", nperseg=seg, noverlap=seg // 2,
+                       detrend="linear")
+    else:
+        f, psd = _psd(x, dt, np)
+    n_bands = int(np.ceil(per_octave * np.log2(band[1] / band[0])))
+    edges = np.geomspace(band[0], band[1], n_bands + 1)
+    centres, levels = [], []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        sel = (f >= lo) & (f < hi)
+        if np.any(sel):
+            centres.append(np.sqrt(lo * hi))
+            levels.append(float(np.mean(psd[sel])))
+    return np.array(centres), np.array(levels)
+
+
 def plot_psd_overlay(recs, q_sims, *, title: str, path: str | Path | None = None,
                      band=(20.0, 12_500.0)):
-    """Measured vs simulated PSD [m²/Hz] of each recording, one panel per recording."""
+    """Measured vs simulated PSD [m²/Hz] of each recording, one panel per recording
+    (:func:`display_psd`: Welch average for periodic drives, 1/12-octave bands)."""
     fig, axes = subplots(1, len(recs), figsize=(5.2 * len(recs), 3.6), squeeze=False)
     for ax, rec, q in zip(axes[0], recs, q_sims, strict=True):
-        f, lp_m = log_psd(rec.position_m, rec.dt, band=band, xp=np)
-        _, lp_s = log_psd(q, rec.dt, band=band, xp=np)
-        ax.loglog(f, 10**lp_m, color="k", lw=0.8, label="measured")
-        ax.loglog(f, 10**lp_s, color="tab:blue", lw=0.9, label="simulated")
+        f0 = rec.drive.frequency_Hz if rec.drive.waveform in ("sawtooth", "sine") else None
+        per = rec.sample_rate_Hz / f0 if f0 else None
+        f, p_m = display_psd(rec.position_m, rec.dt, band=band, period_samples=per)
+        _, p_s = display_psd(np.asarray(q), rec.dt, band=band, period_samples=per)
+        ax.loglog(f, p_m, color="0.55", lw=2.6, alpha=0.8, label="measured")
+        ax.loglog(f, p_s, color="tab:blue", lw=0.9, ls=(0, (4, 2)), label="simulated")
         ax.set_xlabel("frequency [Hz]")
         ax.set_title(rec.name, fontsize=9)
         ax.grid(True, which="both", alpha=0.25)
     axes[0][0].set_ylabel("PSD of q [m²/Hz]")
     axes[0][0].legend(fontsize=8)
-    fig.suptitle(title, fontsize=10)
+    how = "Welch average, " if any(r.drive.waveform in ("sawtooth", "sine") for r in recs) else ""
+    fig.suptitle(f"{title}; {how}mean over 1/12-octave bands", fontsize=10)
     fig.tight_layout()
     return _finish(fig, path)
 
