@@ -89,8 +89,8 @@ def plot_hysteresis_loop(actuator, rec, q_sim, *, path: str | Path | None = None
     half_m = np.asarray(rec.position_m) / 2
     half_s = np.asarray(q_sim) / 2
     shift = np.mean(half_s - half_m)  # the interferometer zero is arbitrary
-    ax.plot(u, (half_m + shift) * 1e6, color="k", lw=0.8, label="measured q/2")
-    ax.plot(u, half_s * 1e6, color="tab:blue", lw=0.9, ls="--", label="simulated q/2")
+    ax.plot(u, (half_m + shift) * 1e6, color="0.55", lw=2.6, alpha=0.8, label="measured q/2")
+    ax.plot(u, half_s * 1e6, color="tab:blue", lw=0.9, ls=(0, (4, 2)), label="simulated q/2")
     ax.plot(u, gamma * 1e6, color="tab:orange", lw=0.9, label="model Γ(U) (PI)")
     ax.set_xlabel("U [V]")
     ax.set_ylabel("displacement [µm]")
@@ -128,7 +128,8 @@ def plot_step_lengths(recs, q_sims, *, path: str | Path | None = None):
         ax.set_title("backward" if backward else "forward", fontsize=10)
         ax.set_xlabel("amplitude [V]")
         ax.grid(alpha=0.25)
-    axes[0].set_ylabel("step per period [nm]")
+    axes[0].set_ylabel("step per period [nm] (+x)")
+    axes[1].set_ylabel("step per period [nm] (negative: towards −x)")
     axes[1].legend(fontsize=7, ncol=1)
     fig.tight_layout()
     return _finish(fig, path)
