@@ -207,17 +207,22 @@ def plot_overlays(d: Diagnosis, path, n: int = 4):
         e0 = residual_of(rec, d.q_baseline[i])
         e1 = residual_of(rec, d.q_final[i])
         q = rec.position_m
-        axes[0, j].plot(t, q * 1e6, "k", lw=0.8, label="measured")
-        axes[0, j].plot(t, (q - e0) * 1e6, lw=0.8, label="baseline")
-        axes[0, j].plot(t, (q - e1) * 1e6, lw=0.8, ls="--", label="final")
+        # Measured beneath (wide, light) so that the models drawn on it stay visible.
+        axes[0, j].plot(t, q * 1e6, color="0.55", lw=2.6, alpha=0.8, label="measured")
+        axes[0, j].plot(t, (q - e0) * 1e6, color="tab:red", lw=0.8, label="baseline")
+        axes[0, j].plot(t, (q - e1) * 1e6, color="tab:blue", lw=0.8, ls=(0, (4, 2)),
+                        label="final")
         axes[0, j].set_title(rec.name, fontsize=8)
-        axes[1, j].plot(t, e0 * 1e9, lw=0.6, label="baseline")
-        axes[1, j].plot(t, e1 * 1e9, lw=0.6, label="final")
+        sigma_nm = float(d.sigmas[i]) * 1e9
+        axes[1, j].axhspan(-sigma_nm, sigma_nm, color="tab:orange", alpha=0.3, lw=0,
+                           label=f"±1σ noise ({sigma_nm:.3g} nm)")
+        axes[1, j].plot(t, e0 * 1e9, color="tab:red", lw=0.6, label="baseline")
+        axes[1, j].plot(t, e1 * 1e9, color="tab:blue", lw=0.6, label="final")
         axes[1, j].set_xlabel("t [ms]")
+        axes[1, j].legend(fontsize=6, loc="upper right")
     axes[0, 0].set_ylabel("q [µm]")
-    axes[1, 0].set_ylabel("residual [nm]")
+    axes[1, 0].set_ylabel("measured − model [nm]")
     axes[0, 0].legend(fontsize=7)
-    axes[1, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
