@@ -210,30 +210,72 @@ def _design(amplitude, frequency, centre, scale):
     return np.asarray(_basis(jnp.asarray(a), jnp.asarray(lf)))
 
 
+MIN_POINTS = 3
+"""Fewest determined points a direction needs for a surface: the smallest form fitted,
+a line in amplitude or in log10 frequency (2 terms), plus one residual degree of
+freedom, so that R² and the leave-one-out error measure something. The full quadratic
+(6 terms) needs 7 points at 3 or more amplitudes and 3 or more frequencies."""
+
+
+def surface_terms(amplitude, frequency) -> np.ndarray:
+    """Which of the 6 terms of :data:`FORM` points at these drives (``amplitude`` [V],
+    ``frequency`` [Hz]) support: a term needs as many distinct amplitudes (frequencies)
+    as its degree in a (l) plus one, and the fit keeps at least one residual degree of
+    freedom (higher terms dropped first)."""
+    amp, freq = np.asarray(amplitude, float), np.asarray(frequency, float)
+    n, n_a, n_f = amp.size, np.unique(amp).size, np.unique(freq).size
+    use = np.array([True, n_a >= 2, n_f >= 2, n_a >= 3, n_a >= 2 and n_f >= 2, n_f >= 3])
+    if n <= use.sum():
+        use[3:] = False
+    while n <= use.sum() and use.sum() > 1:
+        use[np.flatnonzero(use)[-1]] = False
+    return use
+
+
+def surface_shortfall(amplitude, frequency) -> str | None:
+    """Why points at these drives [V], [Hz] cannot carry a surface, or None when they
+    can (at least :data:`MIN_POINTS`, at two or more drives)."""
+    n = np.asarray(amplitude).size
+    need = (f"a surface needs at least {MIN_POINTS} determined points at 2 or more "
+            f"amplitudes or frequencies (the full quadratic: {N_TERMS + 1} points at 3 "
+            f"amplitudes x 3 frequencies)")
+    if n < MIN_POINTS:
+        return f"{n} determined point(s); {need}"
+    if surface_terms(amplitude, frequency).sum() < 2:
+        return f"all {n} determined points are at one drive; {need}"
+    return None
+
+
+NEGATIVE_R2 = ("R² < 0: the surface predicts these points worse than their mean does. "
+               "The fit weights each point by 1/standard error², so the most precise "
+               "points dominate and the others are missed; judge it by the leave-one-out "
+               "RMS, and add points or use a narrower drive range")
+
+
 def fit_zba_surface(points: ZbaPoints) -> SurfaceFit:
     """Per direction, the quadratic of :data:`FORM` through the determined points,
     weighted by 1/standard error². Terms the points cannot support (fewer distinct
-    amplitudes or frequencies than the term's degree needs) are dropped."""
+    amplitudes or frequencies than the term's degree needs, or no residual degree of
+    freedom left) are dropped (:func:`surface_terms`); a direction with fewer than
+    :data:`MIN_POINTS` points, or with all of them at one drive, gets no surface
+    (``supported`` False and a ``note`` saying what it needs)."""
     coefs = np.zeros((2, N_TERMS))
     centre = np.zeros((2, 2))
     scale = np.ones((2, 2))
     stats = {}
     for row, name in enumerate(("forward", "backward")):
         sel = (points.backward == bool(row)) & points.determined
-        if not np.any(sel):
-            stats[name] = {"points": 0, "supported": False,
-                           "note": "no determined points in this direction"}
-            continue
         amp, freq = points.amplitude_V[sel], points.frequency_Hz[sel]
+        short = surface_shortfall(amp, freq)
+        if short is not None:
+            stats[name] = {"points": int(sel.sum()), "supported": False, "note": short}
+            continue
         z, se = points.z_ba_m[sel], points.std_error_m[sel]
         lf = np.log10(freq)
         centre[row] = [amp.mean(), lf.mean()]
         scale[row] = [max(amp.std(), 1e-9), max(lf.std(), 1e-9)]
         x = _design(amp, freq, centre[row], scale[row])
-        n_a, n_f = np.unique(amp).size, np.unique(freq).size
-        use = np.array([True, n_a >= 2, n_f >= 2, n_a >= 3, n_a >= 2 and n_f >= 2, n_f >= 3])
-        if sel.sum() <= use.sum():  # keep at least one degree of freedom
-            use[3:] = False
+        use = surface_terms(amp, freq)
         w = 1.0 / np.maximum(se, 1e-15)
         c, *_ = np.linalg.lstsq(x[:, use] * w[:, None], z * w, rcond=None)
         coefs[row, use] = c
@@ -255,6 +297,8 @@ def fit_zba_surface(points: ZbaPoints) -> SurfaceFit:
                                                 & ~points.determined)),
             "supported": True,
         }
+        if stats[name]["r2"] < 0:
+            stats[name]["r2_note"] = NEGATIVE_R2
     return SurfaceFit(ZbaSurface(jnp.asarray(coefs), jnp.asarray(centre), jnp.asarray(scale)),
                       stats)
 
