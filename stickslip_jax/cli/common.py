@@ -1,4 +1,11 @@
-"""Shared CLI plumbing: JAX set-up, error reporting, progress."""
+"""Shared CLI plumbing: JAX set-up, error reporting, output checks, progress.
+
+Exit codes: 0 done; 1 an unexpected error (a bug, or a mistake the tool does not
+recognise); 2 bad input (:data:`EXIT_BAD_INPUT`); 3 the computation failed, e.g. a fit
+did not converge (:data:`EXIT_FAILED`). Every error is one ``error: ...`` line on
+stderr (one per bad recording); ``stickslip --debug`` (or ``STICKSLIP_DEBUG=1``) shows
+the traceback instead.
+"""
 
 from __future__ import annotations
 
@@ -6,14 +13,22 @@ import contextlib
 import os
 import sys
 import warnings
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import typer
+from typer.core import TyperGroup
 
 from ..xla_flags import add_xla_flag, fast_cpu_loops
 
+EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 3
+
+#: The most samples ``simulate`` generates: about 270 bytes of memory per sample at
+#: the peak (drive, output, the solver's arrays and the CSV text), so about 2.7 GB.
+MAX_SAMPLES = 10_000_000
+BYTES_PER_SAMPLE = 270
 
 
 def use_all_cpu_cores() -> None:
@@ -60,28 +75,217 @@ def setup_jax(*, all_cpu_cores: bool = False) -> None:
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> typer.Exit:
-    """Print ``error: message`` on stderr and return the Exit to raise."""
-    typer.echo(f"error: {message}", err=True)
+    """Print ``error: message`` on stderr (one such line per line of ``message``) and
+    return the Exit to raise."""
+    for line in str(message).splitlines() or [""]:
+        typer.echo(f"error: {line}", err=True)
     return typer.Exit(code)
+
+
+_debug = False
+
+
+def set_debug(on: bool) -> None:
+    """Record ``stickslip --debug`` (the app's callback, at every invocation)."""
+    global _debug
+    _debug = bool(on)
+
+
+def debug_enabled() -> bool:
+    """True under ``stickslip --debug`` or ``STICKSLIP_DEBUG=1``: errors then show their
+    traceback."""
+    env = os.environ.get("STICKSLIP_DEBUG", "").strip().lower()
+    return _debug or env not in ("", "0", "false", "no")
+
+
+class RecordingErrors(ValueError):
+    """Several recordings break the file contract; ``errors``: one
+    :class:`~stickslip_jax.io.RecordingError` per file, each on its own line."""
+
+    def __init__(self, errors):
+        self.errors = list(errors)
+        super().__init__("\n".join(str(e) for e in self.errors))
 
 
 def user_errors():
     """Exception types that are the user's to fix (reported without a traceback)."""
-    from ..files import InputOverwriteError, OutputExistsError
+    from ..files import InputOverwriteError, OutputExistsError, OutputPathError
     from ..io import RecordingError
     from ..params import ParameterError
 
-    return (RecordingError, ParameterError, OutputExistsError, InputOverwriteError,
-            IsADirectoryError, FileNotFoundError)
+    return (RecordingError, RecordingErrors, ParameterError, OutputExistsError,
+            InputOverwriteError, OutputPathError, IsADirectoryError, NotADirectoryError,
+            FileNotFoundError, PermissionError)
+
+
+def _error_message(err: BaseException) -> str:
+    """One line for ``err``: its own message, or, for an error of the operating system
+    (errno set), the file, the system's reason and what to check."""
+    if isinstance(err, OSError) and err.errno is not None and err.strerror:
+        import errno
+
+        where = f"{err.filename}: " if err.filename else ""
+        fix = ("free some disk space" if err.errno == errno.ENOSPC else
+               "check the path and its permissions")
+        return f"{where}{err.strerror}. Fix: {fix}."
+    if isinstance(err, RecordingErrors):
+        return str(err)  # one line per file
+    return " ".join(str(err).split())
 
 
 @contextlib.contextmanager
 def reported_errors():
-    """Turn user errors into a one-line message and exit code 2."""
+    """Turn user errors into a one-line message and exit code 2 (under ``--debug``,
+    let them through with their traceback)."""
     try:
         yield
     except user_errors() as err:
-        raise fail(str(err)) from None
+        if debug_enabled():
+            raise
+        raise fail(_error_message(err)) from None
+
+
+def report_unexpected(err: Exception) -> typer.Exit:
+    """The one-line report of an error no command caught: a user error or an OS error
+    exits 2, running out of memory 3, anything else (a bug) 1, with the way to see
+    the traceback."""
+    hint = "rerun as `stickslip --debug ...` to see the traceback"
+    if isinstance(err, user_errors()):
+        return fail(_error_message(err))
+    if isinstance(err, MemoryError):
+        return fail(f"out of memory. Fix: make the job smaller (shorter --duration, fewer "
+                    f"grid points or a smaller --chunk); {hint}.", EXIT_FAILED)
+    if isinstance(err, OSError):
+        return fail(_error_message(err))
+    text = " ".join(str(err).split()) or "(no message)"
+    return fail(f"unexpected {type(err).__name__}: {text}. This is probably a bug: {hint} "
+                f"and report it.", EXIT_INTERNAL)
+
+
+class ReportingGroup(TyperGroup):
+    """The ``stickslip`` command group: any exception a command lets through becomes
+    one ``error:`` line and an exit code (see :func:`report_unexpected`), except under
+    ``--debug``, which may stand anywhere on the line (it is moved before the command,
+    where the group's option is parsed)."""
+
+    def parse_args(self, ctx, args):
+        end = args.index("--") if "--" in args else len(args)
+        if "--debug" in args[:end]:
+            args = ["--debug"] + [a for i, a in enumerate(args) if i >= end or a != "--debug"]
+        return super().parse_args(ctx, args)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except (typer.Exit, typer.Abort, typer.TyperException):
+            raise  # typer's own exits, usage errors and aborts
+        except Exception as err:
+            if debug_enabled():
+                raise
+            raise report_unexpected(err) from None
+
+
+def check_outputs(outputs: Mapping[Path | None, Sequence[str] | None], *, force: bool,
+                  inputs=()) -> list[Path]:
+    """Check every output a command will write, before any input is read or anything
+    computed: format, folder, overwrite (``--force``) and input rules of
+    :func:`stickslip_jax.files.check_outputs`. ``outputs``: path (None: not asked for)
+    → the extensions its writer knows (None: any). Creates nothing: the command calls
+    :func:`make_folders` when it is about to write. Returns the paths given."""
+    from ..files import check_outputs as check
+
+    return check({p: s for p, s in outputs.items() if p is not None}, force=force,
+                 inputs=[i for i in inputs if i is not None], create_folders=False)
+
+
+def make_folders(*paths: Path | None) -> None:
+    """Create the folders of the output files ``paths`` (None: skipped), just before
+    they are written."""
+    for p in paths:
+        if p is not None:
+            Path(p).expanduser().parent.mkdir(parents=True, exist_ok=True)
+
+
+def check_sample_count(n: int, what: str) -> None:
+    """Refuse, before allocating anything, a generated drive of more than
+    :data:`MAX_SAMPLES` samples (``what`` says how it was asked for)."""
+    if n <= MAX_SAMPLES:
+        return
+    raise fail(f"{what} is {n:.3g} samples, which would need about "
+               f"{_bytes(n * BYTES_PER_SAMPLE)} of memory; the limit is {MAX_SAMPLES:,} "
+               f"samples (about {_bytes(MAX_SAMPLES * BYTES_PER_SAMPLE)}). Fix: shorten "
+               f"--duration or lower --sample-rate.")
+
+
+def _bytes(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB", "TB", "PB"):
+        if n < 1000 or unit == "PB":
+            return f"{n:.3g} {unit}"
+        n /= 1000
+    raise AssertionError  # unreachable
+
+
+def check_amplitudes(values, option: str) -> None:
+    """Drive amplitudes [V] must be finite and positive: the amplitude is the peak of
+    the 0 → A drive, and a sawtooth's direction is chosen by --direction(s), not by a
+    sign. One rule for every command."""
+    import numpy as np
+
+    a = np.atleast_1d(np.asarray(values, dtype=float))
+    bad = a[~(np.isfinite(a) & (a > 0))]
+    if bad.size:
+        raise fail(f"{option} {bad[0]:g}: an amplitude must be a positive number of volts "
+                   f"(the peak of the 0 → A drive). Fix: give a positive amplitude; choose "
+                   f"the direction with --direction (forward or backward).")
+
+
+def check_frequencies(values, option: str) -> None:
+    """Drive frequencies [Hz] must be finite and positive."""
+    import numpy as np
+
+    f = np.atleast_1d(np.asarray(values, dtype=float))
+    bad = f[~(np.isfinite(f) & (f > 0))]
+    if bad.size:
+        raise fail(f"{option} {bad[0]:g}: a frequency must be a positive number of Hz.")
+
+
+def check_periods(periods: int, settle: int) -> None:
+    """--periods and --settle of a sawtooth sweep: the velocity needs at least one
+    period after the ``settle`` start-up periods."""
+    if periods < 2 or not 0 <= settle < periods:
+        raise fail(f"--periods {periods} --settle {settle}: need periods ≥ 2 and "
+                   f"0 ≤ settle < periods")
+
+
+def load_recordings_reporting_all(paths, *, require_output: bool = True):
+    """:func:`stickslip_jax.io.load_recordings` (files and folders, each file once, in
+    the order given), but every file is read and every bad one reported: raises
+    :class:`RecordingErrors` naming them all instead of stopping at the first."""
+    from ..io import RecordingError, _recording_files, load_recording, load_recordings
+
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir() and _recording_files(p):
+            files.extend(_recording_files(p))
+        else:
+            files.append(p)
+    unique: dict[Path, Path] = {}
+    for f in files:
+        unique.setdefault(f.resolve(), f)
+    recordings, errors = [], []
+    for f in unique.values():
+        try:
+            if f.is_dir():
+                recordings.extend(load_recordings([f], require_output=require_output))
+            else:
+                recordings.append(load_recording(f, require_output=require_output))
+        except RecordingError as err:
+            errors.append(err)
+    if len(errors) == 1:
+        raise errors[0]
+    if errors:
+        raise RecordingErrors(errors)
+    return recordings
 
 
 @contextlib.contextmanager

@@ -7,7 +7,16 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, load_actuator, reported_errors, setup_jax
+from .common import (
+    check_amplitudes,
+    check_frequencies,
+    check_outputs,
+    fail,
+    load_actuator,
+    make_folders,
+    reported_errors,
+    setup_jax,
+)
 
 EPILOG = """Examples:
 
@@ -66,7 +75,7 @@ def contacts_command(
         import equinox as eqx
         import numpy as np
 
-        from ..files import atomic_write_text, check_output_path
+        from ..files import atomic_write_text
         from ..model.ceim import CEIMElastoPlastic
         from ..model.friction import AbstractElastoPlastic, LuGre
         from ..sweep import parse_values
@@ -82,14 +91,16 @@ def contacts_command(
             amps = parse_values(amplitudes, name="--amplitudes")
         except ValueError as err:
             raise fail(str(err)) from None
-        if np.any(loads <= 0) or reference_preload <= 0:
-            raise fail("preloads must be positive")
+        if not (np.all(np.isfinite(loads) & (loads > 0)) and reference_preload > 0):
+            raise fail("--preloads and --reference-preload must be positive numbers of N")
+        check_amplitudes(amps, "--amplitudes")
+        check_frequencies(frequency, "--frequency")
+        if not k_load > 0:
+            raise fail(f"--k-load {k_load:g}: the load spring must be positive [N/m]")
         spreads = _spreads(spread)
-        out.mkdir(parents=True, exist_ok=True)
         paths = {n: out / n for n in ("contacts.json", "preload.png", "spread.png",
                                        "force.png")}
-        for p in paths.values():
-            check_output_path(p, force=force)
+        check_outputs(dict.fromkeys(paths.values()), force=force, inputs=[params])
         act = load_actuator(params)
         notes = []
         fr = act.friction
@@ -107,6 +118,7 @@ def contacts_command(
         act_ceim = eqx.tree_at(lambda a: a.friction, act, ceim)
         typer.echo("preload study...")
         pre = preload_study(act_ceim, loads, amps, frequency)
+        make_folders(*paths.values())
         pre.plot(paths["preload.png"], title=f"CEIM: step vs amplitude at {frequency:g} Hz "
                  f"for several preloads")
         typer.echo("contact spread study...")

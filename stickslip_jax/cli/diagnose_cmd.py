@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from ..diagnose.budget import DEFAULT_TIME_BUDGET_S
-from .common import fail, reported_errors, setup_jax
+from .common import check_outputs, fail, load_recordings_reporting_all, reported_errors, setup_jax
 from .identify_cmd import _parse_fix
 
 EPILOG = """Examples:
@@ -60,8 +60,6 @@ def diagnose_command(
         setup_jax()
         from ..diagnose import NAMES, diagnose
         from ..diagnose.report import write_diagnosis
-        from ..files import check_output_path
-        from ..io import load_recordings
         from ..model.profiles import lu2015_slc1720
         from ..params import load_params
 
@@ -76,10 +74,12 @@ def diagnose_command(
         if skip_identify and params is None:
             raise fail("--skip-identify needs --params (the identified baseline)")
         fixed = _parse_fix(fix)
-        recordings = load_recordings(data)
+        recordings = load_recordings_reporting_all(data)
         inputs = [r.source for r in recordings if r.source]
-        for name in ("diagnosis.json", "report.md"):
-            check_output_path(out / name, force=force, inputs=inputs)
+        names = ["diagnosis.json", "report.md"] + ([] if no_figures else [
+            f"figures/{n}.png" for n in ("residual_map", "overlays", "residual_psd")])
+        check_outputs(dict.fromkeys(out / n for n in names), force=force,
+                      inputs=[params, *inputs])
         start = load_params(params) if params is not None else lu2015_slc1720()
         typer.echo(f"{len(recordings)} recording(s); start: "
                    f"{params if params is not None else 'profile lu2015_slc1720'}", err=True)

@@ -7,7 +7,17 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, load_actuator, reported_errors, setup_jax
+from .common import (
+    check_amplitudes,
+    check_frequencies,
+    check_outputs,
+    check_periods,
+    fail,
+    load_actuator,
+    make_folders,
+    reported_errors,
+    setup_jax,
+)
 
 EPILOG = """Examples:
 
@@ -16,6 +26,8 @@ EPILOG = """Examples:
   stickslip drive --params P.json --velocity 0.12mm/s --direction backward
   --frequencies 100,200,500,1000 --out choices.json
 
+  stickslip drive --velocity -50um/s        (the same as 50um/s --direction backward)
+
 For every frequency the amplitude whose simulated steady-state velocity (phase-locked,
 after --settle start-up periods) is the wanted one, found by bracketing on a velocity
 map over --amplitudes and secant refinement, with the step per period it gives.
@@ -23,9 +35,13 @@ map over --amplitudes and secant refinement, with the step per period it gives.
 
 
 def drive_command(
-    velocity: str = typer.Option(..., "--velocity", help="Wanted speed, e.g. 50um/s, "
-                                 "0.05mm/s (a bare number is µm/s)."),
-    direction: str = typer.Option("forward", "--direction", help="forward or backward."),
+    velocity: str = typer.Option(..., "--velocity", help="Wanted velocity, e.g. 50um/s, "
+                                 "0.05mm/s (a bare number is µm/s). Signed as in the "
+                                 "velocity map: negative is backward."),
+    direction: str | None = typer.Option(None, "--direction", help="forward or backward "
+                                         "(default: the sign of --velocity). With a "
+                                         "positive --velocity it sets the direction; "
+                                         "with a negative one it must be backward."),
     params: Path | None = typer.Option(None, "--params", help="Parameters (JSON). Default: "
                                        "the lu2015_slc1720 profile."),
     frequencies: str = typer.Option("50,100,200,500,1000", "--frequencies",
@@ -40,19 +56,27 @@ def drive_command(
     """Drives (amplitude per frequency) that move the slider at a wanted velocity."""
     with reported_errors():
         setup_jax(all_cpu_cores=True)
-        from ..files import atomic_write_text, check_output_path
+        from ..files import JSON_SUFFIXES, atomic_write_text
         from ..sweep import drive_for_velocity, parse_values, parse_velocity
 
-        if direction not in ("forward", "backward"):
+        if direction not in (None, "forward", "backward"):
             raise fail(f"--direction {direction!r}: choose forward or backward")
         try:
-            speed = abs(parse_velocity(velocity))
+            wanted = parse_velocity(velocity)
             freqs = parse_values(frequencies, name="--frequencies")
             amps = parse_values(amplitudes, name="--amplitudes")
         except ValueError as err:
             raise fail(str(err)) from None
-        if out is not None:
-            check_output_path(out, force=force)
+        check_amplitudes(amps, "--amplitudes")
+        check_frequencies(freqs, "--frequencies")
+        check_periods(periods, settle)
+        if wanted < 0 and direction == "forward":
+            raise fail(f"--velocity {velocity} is backward (negative) but --direction is "
+                       f"forward. Fix: give the speed alone ({velocity.strip()[1:]}) with "
+                       f"--direction forward, or leave out --direction.")
+        direction = direction or ("backward" if wanted < 0 else "forward")
+        speed = abs(wanted)
+        check_outputs({out: JSON_SUFFIXES}, force=force, inputs=[params])
         actuator = load_actuator(params)
         signed = -speed if direction == "backward" else speed
         choices, unreachable = drive_for_velocity(actuator, signed, frequencies=freqs,
@@ -70,6 +94,7 @@ def drive_command(
     if out is not None:
         payload = {"velocity_m_s": signed, "direction": direction,
                    "choices": [c.__dict__ for c in choices], "unreachable_Hz": unreachable}
+        make_folders(out)
         atomic_write_text(out, json.dumps(payload, indent=1) + "\n")
         typer.echo(f"wrote {out}")
     if not any(c.reached for c in choices):

@@ -6,7 +6,14 @@ from pathlib import Path
 
 import typer
 
-from .common import EXIT_FAILED, fail, reported_errors, setup_jax
+from .common import (
+    EXIT_FAILED,
+    check_outputs,
+    fail,
+    load_recordings_reporting_all,
+    reported_errors,
+    setup_jax,
+)
 
 EPILOG = """Examples:
 
@@ -72,8 +79,7 @@ def identify_command(
     with reported_errors():
         setup_jax()
         from ..identify import STEPS, identify
-        from ..identify.report import check_outputs, fit_summary, write_identification
-        from ..io import load_recordings
+        from ..identify.report import fit_summary, output_paths, write_identification
         from ..model.profiles import lu2015_slc1720
         from ..params import ParameterError, load_params
 
@@ -85,8 +91,12 @@ def identify_command(
         if n_pi < 1:
             raise ParameterError(f"--n-pi {n_pi}: need at least one play operator")
         fixed = _parse_fix(fix)
-        recordings = load_recordings(data)
-        check_outputs(out, recordings, force=force)
+        recordings = load_recordings_reporting_all(data)
+        # Every file the identification may write, checked before the fit.
+        paths = [p for p in output_paths(out, recordings)
+                 if not (no_figures and p.parent == out / "figures")]
+        check_outputs(dict.fromkeys(paths), force=force,
+                      inputs=[init, *(r.source for r in recordings)])
         start = load_params(init) if init is not None else lu2015_slc1720()
         typer.echo(f"{len(recordings)} recording(s); start: "
                    f"{init if init is not None else 'profile lu2015_slc1720'}", err=True)

@@ -1,6 +1,8 @@
 """The ``stickslip`` command line: thin commands over the library.
 
 Heavy imports (jax, matplotlib) happen inside the commands, so ``--help`` is fast.
+Help is plain text (no Rich markup, which would eat "[s]" and turn "a:b:n" into an
+emoji); epilog paragraphs keep their line breaks.
 """
 
 from __future__ import annotations
@@ -17,22 +19,53 @@ from . import (
     sweep_cmd,
     zba_cmd,
 )
+from .common import ReportingGroup, set_debug
+
+EPILOG = """Exit codes: 0 done; 1 an unexpected error (a bug: rerun with --debug and report
+it); 2 bad input (a wrong option, recording, parameter file or output path, refused
+before any computation); 3 the computation failed (a fit did not converge, a velocity
+was not reached). Errors are one line, "error: ...", on stderr.
+
+--debug (anywhere on the line) or STICKSLIP_DEBUG=1 shows the traceback instead.
+"""
+
+
+def plain_epilog(text: str) -> str:
+    """``text`` with every paragraph marked to keep its line breaks (click's ``\\b``):
+    the examples stay one command per line."""
+    return "\n\n".join("\b\n" + p.strip("\n") for p in text.strip().split("\n\n"))
+
 
 app = typer.Typer(
     name="stickslip",
     help="Simulate and identify piezoelectric stick-slip actuators (JAX).",
+    epilog=plain_epilog(EPILOG),
+    cls=ReportingGroup,
+    rich_markup_mode=None,
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-app.command("simulate", epilog=simulate.EPILOG)(simulate.simulate_command)
-app.command("params", epilog=params_cmd.EPILOG)(params_cmd.params_command)
-app.command("identify", epilog=identify_cmd.EPILOG)(identify_cmd.identify_command)
-app.command("sweep", epilog=sweep_cmd.EPILOG)(sweep_cmd.sweep_command)
-app.command("drive", epilog=drive_cmd.EPILOG)(drive_cmd.drive_command)
-app.command("zba-surface", epilog=zba_cmd.EPILOG)(zba_cmd.zba_command)
-app.command("diagnose", epilog=diagnose_cmd.EPILOG)(diagnose_cmd.diagnose_command)
-app.command("contacts", epilog=contacts_cmd.EPILOG)(contacts_cmd.contacts_command)
+# name, module, command, one line for the command list (click would cut the docstring)
+for _name, _module, _command, _short in (
+    ("simulate", simulate, simulate.simulate_command,
+     "Simulate the actuator; write q = x1 + x2 as a recording."),
+    ("params", params_cmd, params_cmd.params_command,
+     "Write a parameter profile, or list the parameter names."),
+    ("identify", identify_cmd, identify_cmd.identify_command,
+     "Identify the parameters from recordings."),
+    ("sweep", sweep_cmd, sweep_cmd.sweep_command,
+     "Velocity map over amplitude x frequency x direction."),
+    ("drive", drive_cmd, drive_cmd.drive_command,
+     "Amplitude per frequency for a wanted velocity."),
+    ("zba-surface", zba_cmd, zba_cmd.zba_command,
+     "z_ba per recording, and a surface over the drives."),
+    ("diagnose", diagnose_cmd, diagnose_cmd.diagnose_command,
+     "Find, name and add the physics the model leaves out."),
+    ("contacts", contacts_cmd, contacts_cmd.contacts_command,
+     "Preload, multi-contact runners, force generation."),
+):
+    app.command(_name, epilog=plain_epilog(_module.EPILOG), short_help=_short)(_command)
 
 
 def _version(value: bool) -> None:
@@ -47,5 +80,9 @@ def _version(value: bool) -> None:
 def main(
     version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
                                  help="Print the version and exit."),
+    debug: bool = typer.Option(False, "--debug", help="Show the traceback of an error "
+                               "instead of the one-line message. Global: it applies to "
+                               "every command and may stand anywhere on the line."),
 ) -> None:
     """Simulate and identify piezoelectric stick-slip actuators (JAX)."""
+    set_debug(debug)

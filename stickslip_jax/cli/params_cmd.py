@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from .common import reported_errors
+from .common import check_outputs, reported_errors, setup_jax
 
 EPILOG = """Examples:
 
@@ -17,7 +17,8 @@ EPILOG = """Examples:
 
 
 def params_command(
-    out: Path | None = typer.Option(None, "--out", help="Write the profile as JSON here."),
+    out: Path | None = typer.Option(None, "--out", help="Write the profile as JSON here "
+                                    "(.json; values as float64, so they read back exactly)."),
     profile: str = typer.Option("lu2015_slc1720", help="Which documented profile."),
     list_names: bool = typer.Option(False, "--list", help="List every parameter name."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
@@ -31,10 +32,15 @@ def params_command(
                 typer.echo(f"{name:16s} {doc}")
             if out is None:
                 return
+        from ..files import JSON_SUFFIXES
         from ..model.profiles import PROFILES
 
         if profile not in PROFILES:
             raise ParameterError(f"unknown profile {profile!r}.",
                                  fix=f"use one of {', '.join(PROFILES)}.")
+        check_outputs({out: JSON_SUFFIXES}, force=force)
+        # float64 before the profile is built: without it JAX stores every parameter
+        # as float32 and the file would hold e.g. Ms = 0.024700000882148743.
+        setup_jax()
         path = save_params(PROFILES[profile](), out, force=force)
         typer.echo(f"wrote {path}")

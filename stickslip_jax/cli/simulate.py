@@ -2,12 +2,24 @@
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 from pathlib import Path
 
 import typer
 
-from .common import fail, load_actuator, reported_errors, setup_jax, status
+from .common import (
+    MAX_SAMPLES,
+    check_amplitudes,
+    check_outputs,
+    check_sample_count,
+    fail,
+    load_actuator,
+    make_folders,
+    reported_errors,
+    setup_jax,
+    status,
+)
 
 
 class Waveform(StrEnum):
@@ -45,10 +57,12 @@ def simulate_command(
         None, "--voltage-from", help="Drive the model with this recording's voltage; "
         "its time column and metadata are kept."),
     waveform: Waveform = typer.Option(Waveform.sawtooth, help="Generated drive waveform."),
-    amplitude: float = typer.Option(40.0, help="Drive amplitude A [V]."),
+    amplitude: float = typer.Option(40.0, help="Drive amplitude A [V], > 0: the drive runs "
+                                    "between 0 and A (--direction sets a sawtooth's way)."),
     frequency: float = typer.Option(50.0, help="Sawtooth/sine frequency [Hz]."),
     direction: Direction = typer.Option(Direction.forward, help="Sawtooth direction."),
-    duration: float = typer.Option(0.2, help="Length of the generated drive [s]."),
+    duration: float = typer.Option(0.2, help="Length of the generated drive [s]; at most "
+                                   f"{MAX_SAMPLES:,} samples (--duration x --sample-rate)."),
     sample_rate: float = typer.Option(25000.0, help="Sample rate of the generated drive [Hz]."),
     t0: float = typer.Option(2e-3, help="Step time of a step drive [s]."),
     unit: Unit = typer.Option(Unit.um, help="Unit of the written position column."),
@@ -56,25 +70,29 @@ def simulate_command(
     zba_surface: Path | None = typer.Option(
         None, "--zba-surface", help="z_ba surface JSON (stickslip zba-surface): z_ba then "
         "depends on the drive's amplitude, frequency and direction."),
-    plot: Path | None = typer.Option(None, "--plot", help="Also draw the trace to this image."),
+    plot: Path | None = typer.Option(None, "--plot", help="Also draw the trace to this image "
+                                     "(.png, .pdf, .svg, ...)."),
     force: bool = typer.Option(False, "--force", help="Replace existing output files."),
 ) -> None:
     """Simulate the actuator and write the output q = x1 + x2 as a recording."""
     with reported_errors():
         from .. import io, signals
-        from ..files import check_output_path
+        from ..files import RECORDING_SUFFIXES, image_suffixes
 
-        inputs = [p for p in (params, voltage_from) if p is not None]
-        check_output_path(out, force=force, inputs=inputs)
-        if plot is not None:
-            check_output_path(plot, force=force, inputs=inputs + [out])
+        # Every option and output is checked before anything is read or computed.
+        if substeps < 0:
+            raise fail("--substeps must be ≥ 0 (0 selects the default).")
+        if voltage_from is None:
+            _check_generated(waveform, amplitude, frequency, duration, sample_rate)
+        inputs = [p for p in (params, voltage_from, zba_surface) if p is not None]
+        check_outputs({out: RECORDING_SUFFIXES,
+                       plot: image_suffixes() if plot is not None else None},
+                      force=force, inputs=inputs)
         if voltage_from is not None:
             rec = io.load_recording(voltage_from, require_output=False)
         else:
             rec = _generated(signals, waveform, amplitude, frequency, direction, duration,
                              sample_rate, t0)
-        if substeps < 0:
-            raise fail("--substeps must be ≥ 0 (0 selects the default).")
         setup_jax()
         from ..simulate import DEFAULT_SUBSTEPS, simulate_recording
 
@@ -92,15 +110,24 @@ def simulate_command(
             if voltage_from is not None and rec.position is not None:
                 meas = rec.position_m
             title = f"{rec.name}: {rec.regime}"
+            make_folders(plot)
             plot_trace(rec.time_s, rec.voltage_V, q, q_meas_m=meas, title=title, path=plot)
             typer.echo(f"wrote {plot}")
 
 
-def _generated(signals, waveform, amplitude, frequency, direction, duration, sample_rate, t0):
-    if not duration > 0 or not sample_rate > 0:
-        raise fail("--duration and --sample-rate must be positive.")
-    if waveform is not Waveform.step and not frequency > 0:
+def _check_generated(waveform, amplitude, frequency, duration, sample_rate):
+    """The options of a generated drive, checked before anything is allocated."""
+    if not (math.isfinite(duration) and duration > 0
+            and math.isfinite(sample_rate) and sample_rate > 0):
+        raise fail("--duration and --sample-rate must be positive, finite numbers.")
+    check_amplitudes(amplitude, "--amplitude")
+    if waveform is not Waveform.step and not (math.isfinite(frequency) and frequency > 0):
         raise fail("--frequency must be positive for sawtooth and sine drives.")
+    check_sample_count(round(duration * sample_rate),
+                       f"--duration {duration:g} s at --sample-rate {sample_rate:g} Hz")
+
+
+def _generated(signals, waveform, amplitude, frequency, direction, duration, sample_rate, t0):
     if waveform is Waveform.sawtooth:
         t, u = signals.sawtooth(amplitude, frequency, direction=direction.value,
                                 duration_s=duration, sample_rate_Hz=sample_rate)

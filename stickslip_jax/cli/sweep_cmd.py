@@ -6,7 +6,17 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, load_actuator, reported_errors, setup_jax
+from .common import (
+    check_amplitudes,
+    check_frequencies,
+    check_outputs,
+    check_periods,
+    fail,
+    load_actuator,
+    make_folders,
+    reported_errors,
+    setup_jax,
+)
 
 EPILOG = """Examples:
 
@@ -47,27 +57,26 @@ def sweep_command(
     """Steady-state velocity and step per period over a drive grid (velocity map)."""
     with reported_errors():
         setup_jax(all_cpu_cores=True)
-        from ..files import check_output_path
         from ..sweep import DriveGrid, parse_values, velocity_map
 
         try:
-            grid = DriveGrid.make(parse_values(amplitudes, name="--amplitudes"),
-                                  parse_values(frequencies, name="--frequencies"), directions)
+            amps = parse_values(amplitudes, name="--amplitudes")
+            freqs = parse_values(frequencies, name="--frequencies")
+            check_amplitudes(amps, "--amplitudes")
+            check_frequencies(freqs, "--frequencies")
+            grid = DriveGrid.make(amps, freqs, directions)
         except ValueError as err:
             raise fail(str(err)) from None
-        if periods < 2 or not 0 <= settle < periods:
-            raise fail(f"--periods {periods} --settle {settle}: need periods ≥ 2 and "
-                       f"0 ≤ settle < periods")
+        check_periods(periods, settle)
         if chunk is not None and chunk < 1:
             raise fail("--chunk must be ≥ 1")
         if sample_rate < 2 * float(grid.frequency_Hz.max()):
             raise fail(f"--sample-rate {sample_rate:g} Hz is below twice the highest "
                        f"frequency; at least 20 samples per period are advisable")
         csv_path, fig_path = out / "velocity_map.csv", out / "velocity_map.png"
-        for p in (csv_path, fig_path):
-            check_output_path(p, force=force)
+        check_outputs({csv_path: None, None if no_figure else fig_path: None}, force=force,
+                      inputs=[params, zba_surface])
         actuator = load_actuator(params, zba_surface)
-        out.mkdir(parents=True, exist_ok=True)
         typer.echo(f"{len(grid)} grid point(s), {periods} periods each", err=True)
         last = [-1]
 
@@ -79,6 +88,7 @@ def sweep_command(
 
         vmap_ = velocity_map(actuator, grid, periods=periods, settle=settle,
                              sample_rate_Hz=sample_rate, chunk=chunk, progress=progress)
+        make_folders(csv_path)
         vmap_.save_csv(csv_path, force=force)
         if not no_figure:
             vmap_.plot(fig_path)

@@ -7,7 +7,16 @@ from pathlib import Path
 
 import typer
 
-from .common import fail, load_actuator, reported_errors, setup_jax
+from .common import (
+    EXIT_FAILED,
+    check_outputs,
+    fail,
+    load_actuator,
+    load_recordings_reporting_all,
+    make_folders,
+    reported_errors,
+    setup_jax,
+)
 
 EPILOG = """Examples:
 
@@ -20,6 +29,12 @@ Writes DIR/zba_points.csv (per recording: drive, z_ba, standard error, NRMSE,
 converged, determined), DIR/zba_surface.json (per direction: a quadratic in amplitude
 and log10 frequency, its ranges, RMS, leave-one-out RMS and R²) and DIR/zba_surface.png.
 Only the sawtooth recordings are used; all other parameters stay at --params.
+
+A direction needs at least 3 determined points at 2 or more amplitudes or frequencies
+for a surface (the full quadratic: 7 points at 3 amplitudes x 3 frequencies); fewer
+are refused before the fit. The fit weights each point by 1/standard error², so R² (of
+the unweighted points) can be negative: the surface then predicts the points worse
+than their mean, and the output says so.
 """
 
 
@@ -34,14 +49,18 @@ def zba_command(
     """Fit z_ba per recording in one vmapped solve, then a z_ba surface over the drives."""
     with reported_errors():
         setup_jax()
-        from ..files import atomic_write_text, check_output_path
-        from ..io import load_recordings
-        from ..sweep.zba_surface import fit_zba_points, fit_zba_surface, plot_zba_surface
+        from ..files import atomic_write_text
+        from ..sweep.zba_surface import (
+            fit_zba_points,
+            fit_zba_surface,
+            plot_zba_surface,
+        )
 
-        recordings = load_recordings(data)
+        recordings = load_recordings_reporting_all(data)
+        _check_enough_recordings(recordings)
         paths = [out / n for n in ("zba_points.csv", "zba_surface.json", "zba_surface.png")]
-        for p in paths:
-            check_output_path(p, force=force, inputs=[r.source for r in recordings if r.source])
+        check_outputs(dict.fromkeys(paths), force=force,
+                      inputs=[params, *(r.source for r in recordings)])
         actuator = load_actuator(params)
         typer.echo(f"{len(recordings)} recording(s); fitting z_ba per sawtooth recording...",
                    err=True)
@@ -50,10 +69,12 @@ def zba_command(
         except ValueError as err:
             raise fail(str(err)) from None
         fit = fit_zba_surface(points)
-        out.mkdir(parents=True, exist_ok=True)
+        make_folders(*paths)
         atomic_write_text(paths[0], points.to_csv())
-        fit.save(paths[1], force=True)
         plot_zba_surface(points, fit, paths[2])
+        supported = any(st.get("supported") for st in fit.stats.values())
+        if supported:
+            fit.save(paths[1], force=True)
     n_bad = int((~points.determined).sum())
     typer.echo(f"{len(points.names)} z_ba point(s), {n_bad} not determined (excluded)")
     for name, st in fit.stats.items():
@@ -62,6 +83,33 @@ def zba_command(
                        f"{100 * st['rms_rel']:.3f} %, leave-one-out {100 * st['loo_rms_rel']:.3f}"
                        f" %, R² {st['r2']:.5f}; supported for A in {st['amplitude_range_V']} V,"
                        f" f in {st['frequency_range_Hz']} Hz")
+            if "r2_note" in st:
+                typer.echo(f"    note: {st['r2_note']}")
         else:
             typer.echo(f"  {name}: no surface ({st.get('note', '')})")
+    if not supported:
+        typer.echo(f"wrote {paths[0]} and {paths[2]}")
+        raise fail("no direction has enough determined z_ba points for a surface (see "
+                   f"above); {paths[1].name} was not written. Fix: add stepping recordings "
+                   "at more drives.", EXIT_FAILED)
     typer.echo(f"wrote {', '.join(str(p) for p in paths)}")
+
+
+def _check_enough_recordings(recordings) -> None:
+    """Refuse, before the fit, recordings that cannot give a surface in either direction
+    even if every z_ba is determined."""
+    from ..sweep.zba_surface import MIN_POINTS, N_TERMS, surface_shortfall
+
+    saw = [r for r in recordings if r.drive.waveform == "sawtooth"]
+    counts = []
+    for name, backward in (("forward", False), ("backward", True)):
+        drives = [(r.drive.amplitude_V, r.drive.frequency_Hz) for r in saw
+                  if bool(r.drive.is_backward) == backward]
+        if drives and surface_shortfall([a for a, _ in drives],
+                                        [f for _, f in drives]) is None:
+            return
+        counts.append(f"{name} {len(drives)} at {len(set(drives))} drive(s)")
+    raise fail(f"too few sawtooth recordings for a z_ba surface ({', '.join(counts)}): a "
+               f"direction needs at least {MIN_POINTS} at 2 or more amplitudes or "
+               f"frequencies (the full quadratic: {N_TERMS + 1} at 3 amplitudes x 3 "
+               f"frequencies). Fix: add stepping (sawtooth) recordings at more drives.")
