@@ -115,3 +115,18 @@ def test_contacts_cli_writes_json_and_figures(tmp_path):
         assert (tmp_path / name).stat().st_size > 10_000
     again = CliRunner().invoke(app, ["contacts", "--out", str(tmp_path)])
     assert again.exit_code != 0 and "--force" in again.output
+
+
+def test_force_build_up_compares_the_models_at_one_amplitude():
+    from stickslip_jax.sweep.contact_studies import ForceCurve, plot_force_curves
+
+    amps = np.array([60.0, 70.0, 80.0])
+    hist = np.outer([1.0, 2.0, 1.5], np.linspace(0.0, 1.0, 5)) * 1e-2
+    peak_70 = ForceCurve(amps, hist[:, -1], hist, 1e5, 200.0, 0.2)  # largest force at 70 V
+    fig = plot_force_curves({"a": peak_70, "b": ForceCurve(amps, amps * 1e-3,
+                                                           hist[::-1], 1e5, 200.0, 0.2)})
+    build_up = fig.axes[1]
+    assert "80 V" in build_up.get_title()
+    # Both lines are the 80 V rows: hist[2] for "a", hist[::-1][2] = hist[0] for "b".
+    np.testing.assert_allclose(build_up.lines[0].get_ydata(), hist[2] * 1e3)
+    np.testing.assert_allclose(build_up.lines[1].get_ydata(), hist[0] * 1e3)

@@ -138,3 +138,19 @@ def test_simulate_cli_uses_the_surface_at_the_recordings_drive(fitted, tmp_path)
     err_surface = np.sqrt(np.mean((with_surface - np.asarray(truth)) ** 2)) / scale
     err_plain = np.sqrt(np.mean((plain - np.asarray(truth)) ** 2)) / scale
     assert err_surface < 0.002 and err_surface < err_plain / 5, (err_surface, err_plain)
+
+
+def test_support_interval_is_the_convex_hull_at_a_frequency():
+    from stickslip_jax.sweep.zba_surface import support_interval
+
+    # A full grid: the whole amplitude range at every frequency inside, none outside.
+    a, f = np.meshgrid([40.0, 60.0, 80.0], [100.0, 1000.0])
+    assert support_interval(a.ravel(), f.ravel(), 300.0) == pytest.approx((40.0, 80.0))
+    assert support_interval(a.ravel(), f.ravel(), 2000.0) is None
+    # A triangle: (40, 100), (80, 100), (80, 1000); halfway in log f, from 60 V on.
+    lo, hi = support_interval([40.0, 80.0, 80.0], [100.0, 100.0, 1000.0], 10**2.5)
+    assert (lo, hi) == pytest.approx((60.0, 80.0))
+    # Degenerate hulls: one frequency (a segment), one point.
+    assert support_interval([40.0, 70.0], [200.0, 200.0], 200.0) == pytest.approx((40.0, 70.0))
+    assert support_interval([40.0, 70.0], [200.0, 200.0], 300.0) is None
+    assert support_interval([50.0], [200.0], 200.0) == pytest.approx((50.0, 50.0))

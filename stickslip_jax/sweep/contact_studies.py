@@ -201,19 +201,25 @@ def force_vs_amplitude(actuator: Actuator, amplitudes, frequency_Hz: float, *,
 
 
 def plot_force_curves(curves: dict, path=None):
-    """Generated force [N] against amplitude for several models ``{label: ForceCurve}``.
+    """Generated force [N] against amplitude for several models ``{label: ForceCurve}``,
+    and the build-up period by period at one amplitude [V] for all of them: the
+    largest amplitude every curve has, so the models are compared at the same drive.
     Returns the figure."""
     from ..plots import save_figure, subplots
 
+    common = set.intersection(*(set(np.round(c.amplitudes_V, 9)) for c in curves.values()))
+    if not common:
+        raise ValueError("the force curves share no amplitude to compare the build-up at")
+    a_cmp = max(common)
     fig, axes = subplots(1, 2, figsize=(11, 3.8))
     for label, c in curves.items():
         dz = c.dead_zone_V()
         axes[0].plot(c.amplitudes_V, c.force_N * 1e3, "-o", ms=3,
                      label=f"{label}" + (f" (dead zone to {dz:.1f} V)" if np.isfinite(dz)
                                          and dz > c.amplitudes_V.min() else ""))
-        i = int(np.argmax(np.abs(c.force_N)))
+        i = int(np.flatnonzero(np.round(c.amplitudes_V, 9) == a_cmp)[0])
         axes[1].plot(np.arange(1, c.history_N.shape[1] + 1), c.history_N[i] * 1e3,
-                     label=f"{label}, {c.amplitudes_V[i]:g} V")
+                     label=label)
     first = next(iter(curves.values()))
     if np.isfinite(first.coulomb_N):
         axes[0].axhline(first.coulomb_N * 1e3, color="grey", ls="--", lw=0.8,
@@ -225,7 +231,7 @@ def plot_force_curves(curves: dict, path=None):
     axes[0].legend(fontsize=7)
     axes[1].set_xlabel("period")
     axes[1].set_ylabel("generated force, period mean [mN]")
-    axes[1].set_title("build-up at the largest amplitude", fontsize=10)
+    axes[1].set_title(f"build-up at {a_cmp:g} V, the largest amplitude", fontsize=10)
     axes[1].legend(fontsize=7)
     fig.tight_layout()
     if path is not None:

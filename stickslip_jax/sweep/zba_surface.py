@@ -312,17 +312,60 @@ def surface_supports(fit: SurfaceFit, amplitude, frequency, backward) -> bool:
     return a0 <= amplitude <= a1 and f0 <= frequency <= f1
 
 
+def support_interval(amplitude, frequency, at_frequency: float) -> tuple[float, float] | None:
+    """Amplitudes [V] at ``at_frequency`` [Hz] that lie in the convex hull of the points
+    (``amplitude`` [V], log10 ``frequency`` [Hz]): where a surface fitted to those
+    points interpolates rather than extrapolates. ``(lo, hi)``, or None when the
+    frequency misses the hull. Points on one line (one frequency, or one amplitude)
+    make a degenerate hull: the segment they span."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.unique(np.column_stack([np.asarray(amplitude, float),
+                                     np.log10(np.asarray(frequency, float))]), axis=0)
+    lq = float(np.log10(at_frequency))
+    tol = 1e-9
+    if pts.shape[0] == 0:
+        return None
+    try:
+        eqs = ConvexHull(pts).equations  # rows (n_a, n_l, c): n·x + c ≤ 0 inside
+    except (QhullError, ValueError):
+        # A point or a segment: the part of it at this frequency.
+        l_lo, l_hi = pts[:, 1].min(), pts[:, 1].max()
+        if not l_lo - tol <= lq <= l_hi + tol:
+            return None
+        if l_hi - l_lo <= tol:
+            return float(pts[:, 0].min()), float(pts[:, 0].max())
+        i, j = np.argmin(pts[:, 1]), np.argmax(pts[:, 1])
+        w = (lq - pts[i, 1]) / (pts[j, 1] - pts[i, 1])
+        a = float(pts[i, 0] + w * (pts[j, 0] - pts[i, 0]))
+        return a, a
+    lo, hi = -np.inf, np.inf
+    for n_a, n_l, c in eqs:
+        rhs = -(c + n_l * lq)
+        if abs(n_a) <= tol:
+            if rhs < -tol:
+                return None
+        elif n_a > 0:
+            hi = min(hi, rhs / n_a)
+        else:
+            lo = max(lo, rhs / n_a)
+    return (float(lo), float(hi)) if lo <= hi + tol else None
+
+
 def plot_zba_surface(points: ZbaPoints, fit: SurfaceFit, path=None):
-    """z_ba against amplitude, one colour per frequency: fitted points (markers with
-    ±2 standard errors) and the surface (lines; dashed outside the fitted range)."""
+    """z_ba against amplitude, one panel (and y axis) per direction, one colour per
+    frequency: fitted points (markers with ±2 standard errors; x: not determined) and
+    the surface (lines), drawn only where it is supported: at each frequency, over the
+    amplitudes inside the convex hull of that direction's determined points
+    (:func:`support_interval`)."""
     from ..plots import colormap, subplots
 
-    fig, axes = subplots(1, 2, figsize=(10, 4), sharey=True)
+    fig, axes = subplots(1, 2, figsize=(10, 4))
     freqs = np.unique(points.frequency_Hz)
     colours = colormap("viridis")(np.linspace(0, 0.85, max(freqs.size, 1)))
-    a_all = np.linspace(points.amplitude_V.min(), points.amplitude_V.max(), 60)
     for ax, back in zip(axes, (False, True), strict=True):
         name = "backward" if back else "forward"
+        used = (points.backward == back) & points.determined
         for colour, f in zip(colours, freqs, strict=True):
             sel = (points.frequency_Hz == f) & (points.backward == back)
             if np.any(sel):
@@ -331,21 +374,23 @@ def plot_zba_surface(points: ZbaPoints, fit: SurfaceFit, path=None):
                             ms=4, label=f"{f:g} Hz")
                 bad = sel & ~points.determined
                 ax.plot(points.amplitude_V[bad], points.z_ba_m[bad] * 1e6, "x", color="red")
-            if fit.stats.get(name, {}).get("supported"):
-                z = np.asarray(jax.vmap(lambda a, f=f, b=back: fit.surface(a, f, float(b)))(
-                    jnp.asarray(a_all))) * 1e6
-                ax.plot(a_all, z, "-" if surface_supports(fit, a_all.mean(), f, back) else "--",
-                        color=colour, lw=1)
+            span = (support_interval(points.amplitude_V[used], points.frequency_Hz[used], f)
+                    if fit.stats.get(name, {}).get("supported") else None)
+            if span is not None and span[1] > span[0]:
+                a = np.linspace(span[0], span[1], 60)
+                z = np.asarray(jax.vmap(lambda amp, f=f, b=back: fit.surface(amp, f, float(b)))(
+                    jnp.asarray(a))) * 1e6
+                ax.plot(a, z, "-", color=colour, lw=1)
         st = fit.stats.get(name, {})
         extra = (f"; RMS {100 * st['rms_rel']:.2f} %, LOO {100 * st['loo_rms_rel']:.2f} %"
                  if st.get("supported") else "; no surface")
         ax.set_title(name + extra, fontsize=9)
         ax.set_xlabel("amplitude [V]")
+        ax.set_ylabel(f"z_ba, {name} drive [µm]")
         ax.grid(alpha=0.25)
-    axes[0].set_ylabel("z_ba [µm]")
     axes[1].legend(fontsize=7)
-    fig.suptitle("z_ba per recording (markers, ±2 SE; x: not determined) and surface",
-                 fontsize=10)
+    fig.suptitle("z_ba per recording (markers, ±2 SE; x: not determined) and the surface "
+                 "(lines, only within the points' convex hull)", fontsize=10)
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=130)
