@@ -26,6 +26,9 @@ scipy.optimize.least_squares over the same JAX residuals.
    of the residual function is done before either timer starts.
 Target (issue #3): end to end under 60 s; this package at least 3x faster than scipy
 (2). Item 3 isolates the last step, where both start next to the optimum (information).
+Every JAX simulation here (identify, and the residuals scipy calls) runs at the
+simulator's default stepping (``Stepping()``: a step from the model's fastest mode,
+located slip reversals, refined intervals), planned once per residual from its start.
 """
 
 import argparse
@@ -122,7 +125,7 @@ class Recorder:
 def joint_residuals(actuator, data: Dataset) -> TraceResiduals:
     """identify's joint-step residual (all recordings, PSD and step-length terms) with
     the joint step's free parameters around ``actuator``."""
-    return TraceResiduals(ParameterMap.make(actuator, JOINT), data, w_psd=DEFAULT_W_PSD,
+    return TraceResiduals.make(ParameterMap.make(actuator, JOINT), data, w_psd=DEFAULT_W_PSD,
                           w_steps=1.0)
 
 
