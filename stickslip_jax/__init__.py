@@ -84,9 +84,11 @@ from .params import (
 )
 from .signals import make_recording, sawtooth, sine, step
 from .simulate import (
-    DEFAULT_SUBSTEPS,
+    NonFiniteSimulation,
     Trajectory,
     drive_context,
+    estimate_error,
+    plan_steps,
     simulate,
     simulate_batch,
     simulate_recording,
@@ -95,6 +97,14 @@ from .simulate import (
     stack_drives,
 )
 from .solvers import EULER, HEUN, RK4, SOLVERS, ExplicitRK
+from .stepping import (
+    DEFAULT_STEPPING,
+    REFERENCE_STEPPING,
+    Stepping,
+    SteppingError,
+    StepPlan,
+    fastest_rate,
+)
 from .sweep import (
     DriveChoice,
     DriveGrid,
@@ -125,7 +135,9 @@ __version__ = "0.1.0"
 __all__ = [
     "AbstractExtension", "AbstractFriction", "AbstractHysteresis", "AbstractInputStage",
     "AbstractOutputMap", "Actuator", "ConstantZssElastoPlastic", "CoreState",
-    "DEFAULT_SUBSTEPS", "DriveContext",
+    "DEFAULT_STEPPING", "REFERENCE_STEPPING", "DriveContext", "NonFiniteSimulation",
+    "StepPlan", "Stepping",
+    "SteppingError", "estimate_error", "fastest_rate", "plan_steps",
     "DriveInfo", "EULER", "ElastoPlastic", "ExplicitRK", "ExtensionTerms", "HEUN",
     "IdentityInput", "IdentityOutput", "InputOverwriteError", "LU2015_TABLE", "LuGre",
     "OutputExistsError", "PROFILES", "ParameterError", "PiezoElement", "PrandtlIshlinskii",

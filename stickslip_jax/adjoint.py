@@ -9,8 +9,10 @@ differentiated, forward mode is cheaper: one pass that carries one tangent per
 parameter through the same loop gives every sensitivity dq/dθ, and a gradient is
 then a product with that Jacobian. With :func:`~stickslip_jax.xla_flags.fast_cpu_loops`
 (the CLI's, tests' and notebooks' setting) the loops compile natively, reverse mode
-costs about 3.5-5 forward runs whatever the number of parameters, and forward mode
-wins only for up to three (:func:`default_max_directions`).
+cost about 3.5-5 forward runs with the plain fixed-step scheme; with the default
+stepping's located switches and refined intervals (``cond``s whose both branches
+reverse mode stores and replays) a gradient costs about 45 forward runs, so forward
+sensitivities win up to about 60 parameters (:func:`default_max_directions`).
 
 - :class:`ForwardSensitivities` (the default): the simulation gets a custom JVP whose
   tangent is ``J·t`` with ``J`` the dense Jacobian with respect to the *perturbed*
@@ -41,8 +43,6 @@ import jax
 import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
-from .xla_flags import native_loops_requested
-
 
 def value_and_jacfwd(fn: Callable, x: jax.Array,
                      basis: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
@@ -71,16 +71,13 @@ class AbstractAdjoint(eqx.Module):
 def default_max_directions() -> int:
     """Where :class:`ForwardSensitivities` hands over to reverse mode, in perturbed scalars.
 
-    Measured on the benchmark trace (1 s, 25 kHz), ``jax.grad`` of a sum of squares as
-    multiples of one forward run: with XLA's default CPU loops reverse mode costs
-    15-21 and forward sensitivities about 6 for nine parameters, so forward wins up to
-    about 60 (64). With :func:`~stickslip_jax.xla_flags.fast_cpu_loops` both get
-    cheaper, reverse mode most (its many small kernels were the overhead): for 1, 2,
-    3, 4, 6 parameters forward sensitivities cost 3.0, 2.9, 3.5, 5.0, 6.7 and reverse
-    mode 3.4, 3.4, 3.5, 3.5, 4.9, so forward wins up to 3.
+    Measured on the benchmark trace (1 s, 25 kHz) with the simulator's default stepping
+    (located switches and refined intervals, whose ``cond``s reverse mode must store and
+    replay), as multiples of one forward run: ``jax.jacfwd`` costs 1.3, 3.1, 14.7 and
+    33.9 for 1, 3, 9 and 44 parameters, reverse-mode ``jax.grad`` about 45 whatever
+    their number (and 7x longer to compile). Forward sensitivities win up to about 60
+    parameters: 64, on every backend.
     """
-    if jax.default_backend() == "cpu" and native_loops_requested():
-        return 3
     return 64
 
 

@@ -1,17 +1,26 @@
 """Fixed-step simulation of an :class:`Actuator` driven by a sampled voltage.
 
-One ``lax.scan`` over sample intervals; inside each interval ``substeps`` Runge-Kutta
-sub-steps in a ``fori_loop`` (not unrolled: unrolling multiplies compile time). The
-per-sample step is wrapped in ``jax.checkpoint`` so that a reverse-mode gradient
+One ``lax.scan`` over sample intervals; inside each interval Runge-Kutta sub-steps in
+a ``fori_loop`` (not unrolled: unrolling multiplies compile time), with a step size in
+seconds, located slip reversals and refined intervals (:mod:`stickslip_jax.stepping`).
+The per-sample step is wrapped in ``jax.checkpoint`` so that a reverse-mode gradient
 stores one carry per sample and recomputes the sub-steps, keeping memory linear in
 the trace length with a small constant.
 
 Works under ``jit``, ``vmap``, ``jacfwd``/``jvp`` and ``grad``. Several recordings
 go through one batched scan with :func:`simulate_batch` (pad to a common length).
+
+The sub-step count is static: it is planned (:meth:`Stepping.plan`) from concrete
+parameter values at the call. Called with traced parameters (inside a user's ``jit``
+or ``grad``), the plan falls back to ``Stepping.max_step`` or
+:data:`~stickslip_jax.stepping.FALLBACK_MAX_STEP_S`; pass ``stepping=`` a
+:class:`Stepping` with ``max_step`` (or a :class:`StepPlan` made outside) to get the
+same steps inside and outside.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from functools import partial
 
 import equinox as eqx
@@ -23,11 +32,74 @@ from jaxtyping import Array, Float
 from .adjoint import DEFAULT_ADJOINT, AbstractAdjoint
 from .model.actuator import Actuator
 from .model.base import DriveContext
-from .solvers import RK4, ExplicitRK
-from .xla_flags import native_loops_requested
+from .solvers import ExplicitRK
+from .stepping import (
+    DEFAULT_STEPPING,
+    Stepping,
+    StepPlan,
+    fastest_rate,
+    sample_stepper,
+    time_scale_report,
+)
 
-DEFAULT_SUBSTEPS = 16
-"""Default RK4 sub-steps per sample period (chosen by tests/test_convergence.py)."""
+RK4_STABLE_PHASE = 2.78
+"""Largest ``h·|λ|`` [rad] at which classic RK4 stays stable for an undamped mode
+(its stability region reaches 2√2 ≈ 2.83 on the imaginary axis)."""
+
+__all__ = [
+    "NonFiniteSimulation", "Trajectory", "check_finite", "estimate_error", "plan_steps",
+    "simulate", "simulate_batch", "simulate_recording", "simulate_recordings",
+    "simulate_states",
+]
+
+
+class NonFiniteSimulation(ValueError):
+    """A simulated trace that went non-finite (NaN or ±inf)."""
+
+
+def plan_steps(actuator: Actuator, dt, *, stepping: Stepping | StepPlan | None = None,
+               substeps: int | None = None, solver: ExplicitRK | None = None,
+               samples: int | None = None) -> StepPlan:
+    """The static :class:`StepPlan` for a call: ``stepping`` (default
+    :data:`~stickslip_jax.stepping.DEFAULT_STEPPING`) planned for ``actuator`` at
+    sample period(s) ``dt`` [s]. ``substeps``: exactly that many sub-steps per sample,
+    never refined (convergence studies; overrides ``stepping``). ``solver`` replaces the
+    stepping's tableau. A :class:`StepPlan` is used as given."""
+    if isinstance(stepping, StepPlan):
+        return stepping
+    stepping = DEFAULT_STEPPING if stepping is None else stepping
+    if substeps is not None:
+        stepping = Stepping.uniform(substeps, stepping.solver)
+    if solver is not None:
+        stepping = dataclasses.replace(stepping, solver=solver)
+    return stepping.plan(actuator, dt, samples=samples)
+
+
+def check_finite(q, actuator: Actuator, plan: StepPlan, dt, what: str = "the simulated trace"):
+    """``q`` unchanged, or :class:`NonFiniteSimulation` saying where it went non-finite
+    and what to check. Only for concrete arrays (skipped for tracers)."""
+    if isinstance(q, jax.core.Tracer):
+        return q
+    arr = np.asarray(q)
+    if arr.size and not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        where = f"sample {int(bad[-1])}" + (f" of row {int(bad[0])}" if arr.ndim > 1 else "")
+        h = float(np.max(np.asarray(dt))) / plan.substeps
+        cause = ("A natural frequency far above 100 kHz, or a negative mass, stiffness or "
+                 "damping, usually means a unit slip.")
+        try:
+            rate = fastest_rate(actuator)
+        except Exception:  # noqa: BLE001 - the report must not fail where the model did
+            rate = None
+        if rate is not None and h * rate > RK4_STABLE_PHASE:
+            cause = (f"The sub-step is {h * 1e6:.3g} µs, longer than RK4 can follow the "
+                     f"model's fastest mode ({rate / (2 * np.pi):.3g} Hz needs at most "
+                     f"{RK4_STABLE_PHASE / rate * 1e6:.3g} µs): use the automatic stepping "
+                     "(no substeps) or a shorter max_step. " + cause)
+        raise NonFiniteSimulation(
+            f"{what} went non-finite at {where} (sub-step {h * 1e9:.3g} ns, "
+            f"{plan.substeps} per sample). {cause} Parameters: {time_scale_report(actuator)}.")
+    return q
 
 
 def rest_carry(actuator: Actuator, u0, drive):
@@ -36,77 +108,11 @@ def rest_carry(actuator: Actuator, u0, drive):
     return (y0, m0), actuator.output(y0, u0, actuator.free_stroke(y0, m0, u0), drive)
 
 
-def sample_stepper(actuator: Actuator, dt, drive, substeps: int, solver: ExplicitRK):
-    """The scan body over one sample interval: ``((y, memory), (u_a, u_b)) ↦
-    ((y, memory), q_b)`` with the voltage linear from ``u_a`` to ``u_b`` [V] over
-    ``dt`` [s] and ``q_b`` [m] the output at its end (before the output map)."""
-    h = dt / substeps
-    # Distinct stage times of the solver (RK4: 0, 1/2, 1) and each stage's column.
-    c_unique = tuple(sorted(set(solver.c)))
-    column = tuple(c_unique.index(c) for c in solver.c)
-    # Stage times as fractions of one sample interval, shape (substeps, distinct c).
-    fractions = jnp.asarray(
-        (np.arange(substeps)[:, None] + np.asarray(c_unique)[None, :]) / substeps
-    )
-
-    def interval_fast(y, memory, u_a, du):
-        # The voltage is linear, hence monotone, over the interval, and along a
-        # monotone path every play output is clip(p_start, u - r, u + r): the
-        # stroke at every stage time comes from one vectorised evaluation and
-        # equals what per-sub-step commits would give, at a fraction of the cost.
-        u_stage = u_a + du * fractions
-        strokes = jax.vmap(actuator.hysteresis.output, (None, 0))(
-            memory, u_stage.reshape(-1)
-        ).reshape(u_stage.shape)
-
-        def substep(j, y):
-            u_row = jax.lax.dynamic_index_in_dim(u_stage, j, keepdims=False)
-            g_row = jax.lax.dynamic_index_in_dim(strokes, j, keepdims=False)
-
-            def field(i, yy):
-                return actuator.vector_field(yy, u_row[column[i]], g_row[column[i]], drive)
-
-            return actuator.project(solver.step(field, y, h), drive)
-
-        return jax.lax.fori_loop(0, substeps, substep, y)
-
-    def interval_general(y, memory, u_a, du):
-        # The piezo voltage depends on input-stage states: evaluate the hysteresis
-        # at every stage with the memory of the sub-step start, commit at its end.
-        def substep(j, state):
-            y, memory = state
-
-            def field(i, yy):
-                u = u_a + du * fractions[j, column[i]]
-                return actuator.vector_field(yy, u, actuator.free_stroke(yy, memory, u), drive)
-
-            y = solver.step(field, y, h)
-            memory = actuator.commit_memory(y, memory, u_a + du * (j + 1) / substeps)
-            return actuator.project(y, drive), memory
-
-        return jax.lax.fori_loop(0, substeps, substep, (y, memory))
-
-    @jax.checkpoint
-    def sample_step(carry, u_pair):
-        y, memory = carry
-        u_a, u_b = u_pair
-        if actuator.stroke_follows_command:
-            y = interval_fast(y, memory, u_a, u_b - u_a)
-            memory = actuator.commit_memory(y, memory, u_b)
-        else:
-            y, memory = interval_general(y, memory, u_a, u_b - u_a)
-        q = actuator.output(y, u_b, actuator.free_stroke(y, memory, u_b), drive)
-        return (y, memory), q
-
-    return sample_step
-
-
-def _scan(actuator: Actuator, voltage, dt, drive, substeps: int, solver: ExplicitRK, *,
-          keep_states: bool = False):
+def _scan(actuator: Actuator, voltage, dt, drive, plan: StepPlan, *, keep_states: bool = False):
     """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T), and
     with ``keep_states`` also the integrated state at every sample, (T, n_states)."""
     carry, q0 = rest_carry(actuator, voltage[0], drive)
-    step = sample_stepper(actuator, dt, drive, substeps, solver)
+    step = sample_stepper(actuator, dt, drive, plan)
 
     def body(c, u_pair):
         c, q = step(c, u_pair)
@@ -119,9 +125,9 @@ def _scan(actuator: Actuator, voltage, dt, drive, substeps: int, solver: Explici
     return jnp.concatenate([carry[0][None], ys]), jnp.concatenate([q0[None], qs])
 
 
-def _model_output(actuator: Actuator, voltage, dt, drive, substeps: int, solver: ExplicitRK):
+def _model_output(actuator: Actuator, voltage, dt, drive, plan: StepPlan):
     """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T)."""
-    return _scan(actuator, voltage, dt, drive, substeps, solver)
+    return _scan(actuator, voltage, dt, drive, plan)
 
 
 def _checked(voltage, drive) -> tuple[jax.Array, DriveContext]:
@@ -133,14 +139,14 @@ def _checked(voltage, drive) -> tuple[jax.Array, DriveContext]:
 
 
 @partial(eqx.filter_jit)
-def _simulate(actuator, voltage, dt, drive, substeps, solver, adjoint=DEFAULT_ADJOINT):
+def _simulate(actuator, voltage, dt, drive, plan, adjoint=DEFAULT_ADJOINT):
     # Everything differentiable is one explicit argument of the adjoint's wrapper
     # (no closed-over tracers), so its derivative rule sees which inputs are perturbed.
     dynamic, static = eqx.partition((actuator, dt, drive), eqx.is_inexact_array)
 
     def run(dynamic, voltage):
         actuator, dt, drive = eqx.combine(dynamic, static)
-        q = _model_output(actuator, voltage, dt, drive, substeps, solver)
+        q = _model_output(actuator, voltage, dt, drive, plan)
         t = dt * jnp.arange(voltage.shape[0])
         return actuator.output_map(t, q)
 
@@ -153,23 +159,57 @@ def simulate(
     *,
     dt: float,
     drive: DriveContext | None = None,
-    substeps: int = DEFAULT_SUBSTEPS,
-    solver: ExplicitRK = RK4,
+    stepping: Stepping | StepPlan | None = None,
+    substeps: int | None = None,
+    solver: ExplicitRK | None = None,
     adjoint: AbstractAdjoint = DEFAULT_ADJOINT,
 ) -> Float[Array, " T"]:
     """Output q [m] of ``actuator`` for a voltage [V] sampled every ``dt`` [s].
 
     The actuator starts at rest under ``voltage[0]``; between samples the voltage is
     linear (first-order hold). ``q[0]`` is the rest output. ``drive`` selects
-    direction-dependent parameters (default: forward). ``adjoint`` chooses how
-    derivatives go through the simulation (:mod:`stickslip_jax.adjoint`): the default
-    ``ForwardSensitivities()`` gives ``jax.grad`` over a few parameters from forward
-    sensitivities (about 3x cheaper than reverse mode); ``CheckpointedScan()`` is plain
-    reverse mode through the scan.
+    direction-dependent parameters (default: forward). ``stepping`` chooses the
+    internal steps (default: from the model's time scales, located slip reversals,
+    refined intervals; :mod:`stickslip_jax.stepping`); ``substeps`` fixes the sub-steps
+    per sample instead (studies). ``adjoint`` chooses how derivatives go through the
+    simulation (:mod:`stickslip_jax.adjoint`): the default ``ForwardSensitivities()``
+    gives ``jax.grad`` over a few parameters from forward sensitivities;
+    ``CheckpointedScan()`` is plain reverse mode through the scan.
+
+    Raises :class:`NonFiniteSimulation` (when the result is concrete) if the trace
+    goes non-finite, and :class:`~stickslip_jax.stepping.SteppingError` when the model's
+    time scales would need an unreasonable number of sub-steps.
     """
     voltage, drive = _checked(voltage, drive)
-    return _simulate(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver,
-                     adjoint)
+    plan = plan_steps(actuator, dt, stepping=stepping, substeps=substeps, solver=solver,
+                      samples=voltage.shape[0] - 1)
+    q = _simulate(actuator, voltage, jnp.asarray(dt, dtype=float), drive, plan, adjoint)
+    return check_finite(q, actuator, plan, dt)
+
+
+def estimate_error(
+    actuator: Actuator,
+    voltage: Float[Array, " T"],
+    *,
+    dt: float,
+    drive: DriveContext | None = None,
+    stepping: Stepping | StepPlan | None = None,
+) -> float:
+    """A-posteriori estimate of how far ``simulate`` at this stepping is from the
+    converged trace: RMS over the samples, offset removed [m].
+
+    Step doubling: the trace again with twice the coarse sub-steps (same refinement
+    rule); for a fourth-order method the error of the coarser trace is 16/15 of their
+    difference. Costs about two more simulations.
+    """
+    voltage, drive = _checked(voltage, drive)
+    plan = plan_steps(actuator, dt, stepping=stepping, samples=voltage.shape[0] - 1)
+    dt_arr = jnp.asarray(dt, dtype=float)
+    q1 = np.asarray(_simulate(actuator, voltage, dt_arr, drive, plan))
+    q2 = np.asarray(_simulate(actuator, voltage, dt_arr, drive, plan.doubled()))
+    d = q1 - q2
+    d = d - d.mean()
+    return float(np.sqrt(np.mean(d * d)) * 16.0 / 15.0)
 
 
 class Trajectory(eqx.Module):
@@ -195,8 +235,8 @@ class Trajectory(eqx.Module):
 
 
 @partial(eqx.filter_jit)
-def _trajectory(actuator, voltage, dt, drive, substeps, solver):
-    ys, q = _scan(actuator, voltage, dt, drive, substeps, solver, keep_states=True)
+def _trajectory(actuator, voltage, dt, drive, plan):
+    ys, q = _scan(actuator, voltage, dt, drive, plan, keep_states=True)
     t = dt * jnp.arange(voltage.shape[0])
     xdot = ys[:, 1] - ys[:, 3]
     z = ys[:, 4]
@@ -212,8 +252,9 @@ def simulate_states(
     *,
     dt: float,
     drive: DriveContext | None = None,
-    substeps: int = DEFAULT_SUBSTEPS,
-    solver: ExplicitRK = RK4,
+    stepping: Stepping | StepPlan | None = None,
+    substeps: int | None = None,
+    solver: ExplicitRK | None = None,
 ) -> Trajectory:
     """Like :func:`simulate` but keeps every state at every sample (a :class:`Trajectory`).
 
@@ -221,21 +262,24 @@ def simulate_states(
     sawtooth period, the slider and piezo separately); ``simulate`` is leaner.
     """
     voltage, drive = _checked(voltage, drive)
-    return _trajectory(actuator, voltage, jnp.asarray(dt, dtype=float), drive, substeps, solver)
+    plan = plan_steps(actuator, dt, stepping=stepping, substeps=substeps, solver=solver,
+                      samples=voltage.shape[0] - 1)
+    tr = _trajectory(actuator, voltage, jnp.asarray(dt, dtype=float), drive, plan)
+    check_finite(tr.q, actuator, plan, dt)
+    return tr
 
 
 def default_batching() -> str:
     """How :func:`simulate_batch` runs its rows by default.
 
-    ``"map"`` (one row after the other, ``jax.lax.map``) on a CPU whose small loops XLA
-    compiles natively (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`): each row is
-    then one tight scalar loop, where ``vmap`` would make every operation a short
-    vector operation (measured, 17 rows of a 1 s trace: 46 ms per row mapped against
-    77 ms vmapped). ``"vmap"`` otherwise: on an accelerator the rows run in parallel,
-    and with XLA's default CPU loops a vmapped row costs less than a mapped one
-    (94 against 150 ms).
+    ``"map"`` (one row after the other, ``jax.lax.map``) on a CPU: each row is one tight
+    scalar loop whose refinement and event ``cond``s run only where needed; under
+    ``vmap`` they become selects and every interval of every row pays every branch
+    (measured on 17 rows of a 0.2 s trace: vmapped 18x the cost of the stepping before
+    event location, mapped 0.74x; with XLA's native small loops mapped also wins).
+    ``"vmap"`` on an accelerator, where the rows run in parallel.
     """
-    if jax.default_backend() == "cpu" and native_loops_requested():
+    if jax.default_backend() == "cpu":
         return "map"
     return "vmap"
 
@@ -257,8 +301,8 @@ def over_rows(fn, rows, batching: str):
 
 
 @partial(eqx.filter_jit)
-def _simulate_batch(actuator, voltages, dts, drives, substeps, solver, adjoint, batching):
-    return over_rows(lambda v, dt, d: _simulate(actuator, v, dt, d, substeps, solver, adjoint),
+def _simulate_batch(actuator, voltages, dts, drives, plan, adjoint, batching):
+    return over_rows(lambda v, dt, d: _simulate(actuator, v, dt, d, plan, adjoint),
                      (voltages, dts, drives), batching)
 
 
@@ -268,8 +312,9 @@ def simulate_batch(
     *,
     dt: Float[Array, " B"] | float,
     drives: DriveContext | None = None,
-    substeps: int = DEFAULT_SUBSTEPS,
-    solver: ExplicitRK = RK4,
+    stepping: Stepping | StepPlan | None = None,
+    substeps: int | None = None,
+    solver: ExplicitRK | None = None,
     adjoint: AbstractAdjoint = DEFAULT_ADJOINT,
     batching: str | None = None,
 ) -> Float[Array, "B T"]:
@@ -278,6 +323,9 @@ def simulate_batch(
 
     ``batching``: ``"vmap"`` (one batched scan) or ``"map"`` (the rows one after the
     other in one program); default :func:`default_batching`. Same numbers either way.
+
+    ``stepping``/``substeps``/``solver`` as in :func:`simulate`; one plan serves all
+    rows, its sub-step count set by the longest ``dt``.
 
     ``dt`` [s] is one value or one per row; ``drives`` is a DriveContext whose fields
     have shape (B,) (see :func:`stack_drives`). Shorter recordings should be padded
@@ -292,8 +340,10 @@ def simulate_batch(
     dts = jnp.broadcast_to(jnp.asarray(dt, dtype=float), (b,))
     if drives is None:
         drives = stack_drives([DriveContext.make()] * b)
-    return _simulate_batch(actuator, voltages, dts, drives, substeps, solver, adjoint,
-                           batching)
+    plan = plan_steps(actuator, dts, stepping=stepping, substeps=substeps,
+                      solver=solver, samples=b * (voltages.shape[1] - 1))
+    q = _simulate_batch(actuator, voltages, dts, drives, plan, adjoint, batching)
+    return check_finite(q, actuator, plan, dts)
 
 
 def stack_drives(drives) -> DriveContext:
@@ -319,7 +369,7 @@ def drive_context(recording) -> DriveContext:
     """The :class:`DriveContext` of a :class:`~stickslip_jax.io.Recording`.
 
     Direction from its metadata or inferred from its voltage; recordings without a
-    direction (step, sine) count as forward (MODEL.md).
+    direction (step, sine) count as forward (docs/model.md).
     """
     info = recording.drive
     return DriveContext.make(
@@ -329,23 +379,25 @@ def drive_context(recording) -> DriveContext:
     )
 
 
-def simulate_recording(actuator: Actuator, recording, *, substeps: int = DEFAULT_SUBSTEPS,
-                       solver: ExplicitRK = RK4) -> np.ndarray:
+def simulate_recording(actuator: Actuator, recording, *,
+                       stepping: Stepping | StepPlan | None = None,
+                       substeps: int | None = None) -> np.ndarray:
     """Model output q [m] for a recording's voltage, on its own time grid."""
     q = simulate(actuator, recording.voltage_V, dt=recording.dt,
-                 drive=drive_context(recording), substeps=substeps, solver=solver)
+                 drive=drive_context(recording), stepping=stepping, substeps=substeps)
     return np.asarray(q)
 
 
-def simulate_recordings(actuator: Actuator, recordings, *, substeps: int = DEFAULT_SUBSTEPS,
-                        solver: ExplicitRK = RK4) -> list[np.ndarray]:
+def simulate_recordings(actuator: Actuator, recordings, *,
+                        stepping: Stepping | StepPlan | None = None,
+                        substeps: int | None = None) -> list[np.ndarray]:
     """Model outputs q [m] of several recordings, simulated in one batched scan."""
     recordings = list(recordings)
     voltages, lengths = pad_voltages([r.voltage_V for r in recordings])
     q = simulate_batch(
         actuator, voltages, dt=np.array([r.dt for r in recordings]),
         drives=stack_drives([drive_context(r) for r in recordings]),
-        substeps=substeps, solver=solver,
+        stepping=stepping, substeps=substeps,
     )
     q = np.asarray(q)
     return [q[i, :n] for i, n in enumerate(lengths)]

@@ -3,11 +3,13 @@
 The voltage is evaluated at each stage's own time (first-order hold between
 samples), the hysteresis memory is held at its sub-step-start value during the
 stages and committed once at the sub-step's end, and the friction state is
-saturated after the commit (MODEL.md "State and input"). The default, classic RK4,
+saturated after the commit (docs/model.md "State and input"). The default, classic RK4,
 was chosen by the convergence study in ``tests/test_convergence.py``.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import equinox as eqx
 import jax
@@ -22,7 +24,10 @@ class ExplicitRK(eqx.Module):
     """An explicit Runge-Kutta method given by its Butcher tableau (static).
 
     Attributes: ``c`` stage times as fractions of the sub-step, ``a`` the lower
-    triangular coupling rows, ``b`` the weights, ``order`` the classical order.
+    triangular coupling rows, ``b`` the weights, ``order`` the classical order,
+    ``locate_events``: split a sub-step where the relative velocity changes sign
+    during a slip (:mod:`stickslip_jax.simulate`; default on, off only for studies
+    of what the location buys).
     """
 
     name: str = eqx.field(static=True)
@@ -30,11 +35,20 @@ class ExplicitRK(eqx.Module):
     a: tuple[tuple[float, ...], ...] = eqx.field(static=True)
     b: tuple[float, ...] = eqx.field(static=True)
     order: int = eqx.field(static=True)
+    locate_events: bool = eqx.field(static=True, default=True)
 
-    def step(self, f, y, h):
-        """One step of size ``h`` of ``y' = f(i, y)``; ``i`` is the stage, ``y`` a pytree."""
-        ks = []
-        for i in range(len(self.c)):
+    def with_events(self, locate: bool) -> ExplicitRK:
+        """The same tableau, with or without event location (see ``locate_events``)."""
+        return dataclasses.replace(self, locate_events=bool(locate))
+
+    def step(self, f, y, h, k1=None):
+        """One step of size ``h`` of ``y' = f(i, y)``; ``i`` is the stage, ``y`` a pytree.
+
+        ``k1``: the first stage ``f(0, y)`` when the caller has it already (explicit
+        tableaux start at ``c = 0``, so it does not depend on ``h``).
+        """
+        ks = [] if k1 is None else [k1]
+        for i in range(len(ks), len(self.c)):
             yi = y
             for aij, kj in zip(self.a[i], ks, strict=False):
                 if aij != 0.0:

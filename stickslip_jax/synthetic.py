@@ -19,6 +19,7 @@ import numpy as np
 from . import signals
 from .io import Recording
 from .model.friction import AbstractElastoPlastic
+from .stepping import REFERENCE_STEPPING
 
 
 @dataclass(frozen=True)
@@ -83,16 +84,19 @@ def paper_protocol(*, periods: float = 5.0, step_duration_s: float = 0.05,
 
 def simulate_set(actuator, specs, *, noise_m: float = 1e-9, seed: int = 0,
                  sample_rate_Hz: float = 25_000.0, unit: str = "um",
-                 substeps: int | None = None) -> list[Recording]:
+                 stepping=REFERENCE_STEPPING) -> list[Recording]:
     """Simulate every drive of ``specs`` with ``actuator`` and add white noise [m].
 
     All recordings go through one batched scan. The noise is Gaussian, independent
     per sample, with standard deviation ``noise_m`` (the interferometer's floor).
+    ``stepping``: the simulator's internal steps; the default,
+    :data:`~stickslip_jax.stepping.REFERENCE_STEPPING`, is 16x finer than what a fit
+    uses, because these sets exist to judge fits.
     """
-    from .simulate import DEFAULT_SUBSTEPS, simulate_recordings
+    from .simulate import simulate_recordings
 
     drives = [s.recording(sample_rate_Hz) for s in specs]
-    qs = simulate_recordings(actuator, drives, substeps=substeps or DEFAULT_SUBSTEPS)
+    qs = simulate_recordings(actuator, drives, stepping=stepping)
     rng = np.random.default_rng(seed)
     out = []
     for rec, q in zip(drives, qs, strict=True):

@@ -48,14 +48,16 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
     assert len(entries) >= 16
     assert sum("drive" in p.label for _, p, _, _ in entries) == 2  # both drive forms
     assert probe_act.n_states > base.n_states
-    q0 = ss.simulate(base, u, dt=rec.dt)
-    q1 = ss.simulate(probe_act, u, dt=rec.dt)
+    # One plan for both (the probes' own modes would otherwise set another step).
+    plan = ss.plan_steps(probe_act, rec.dt)
+    q0 = ss.simulate(base, u, dt=rec.dt, stepping=plan)
+    q1 = ss.simulate(probe_act, u, dt=rec.dt, stepping=plan)
     assert float(jnp.max(jnp.abs(q1 - q0))) < 1e-15
     # ...and each strength moves it.
     for _, probe, _, spec in entries:
         value = spec.getter(probe_act)
         moved = eqx.tree_at(spec.getter, probe_act, value + 20 * spec.scale)
-        dq = ss.simulate(moved, u, dt=rec.dt) - q0
+        dq = ss.simulate(moved, u, dt=rec.dt, stepping=plan) - q0
         assert float(jnp.max(jnp.abs(dq))) > 1e-10, probe.label
 
 

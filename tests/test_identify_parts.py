@@ -98,12 +98,13 @@ def test_bucketed_simulation_equals_one_padded_batch(fixtures_dir):
     data = Dataset.from_recordings(recs)
     assert len(data.buckets) == 2
     act = ss.lu2015_slc1720()
-    q = np.asarray(simulate_dataset(act, data, substeps=4))
-    q1 = np.asarray(simulate_dataset(act, replace(data, buckets=()), substeps=4))
+    plan = ss.plan_steps(act, data.dt, substeps=4)
+    q = np.asarray(simulate_dataset(act, data, plan=plan))
+    q1 = np.asarray(simulate_dataset(act, replace(data, buckets=()), plan=plan))
     np.testing.assert_allclose(q * data.mask, q1 * data.mask, rtol=1e-12, atol=1e-20)
     # Recordings one after the other (CPU default) or vmapped: the same numbers.
     for batching in ("map", "vmap"):
-        qb = np.asarray(simulate_dataset(act, data, substeps=4, batching=batching))
+        qb = np.asarray(simulate_dataset(act, data, plan=plan, batching=batching))
         np.testing.assert_allclose(qb * data.mask, q * data.mask, rtol=1e-12, atol=1e-20)
     with pytest.raises(ValueError, match="batching"):
         simulate_dataset(act, data, batching="pmap")

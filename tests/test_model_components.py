@@ -275,12 +275,14 @@ def test_simulate_under_jit_and_vmap_gives_identical_numbers():
                       for a, d in ((20.0, "forward"), (40.0, "backward"), (60.0, "forward"))])
     drives = [DriveContext.make(d, a, 200.0) for a, d in ((20.0, 0.0), (40.0, 1.0),
                                                           (60.0, 0.0))]
+    # One plan (a traced actuator cannot plan from its values).
+    plan = ss.plan_steps(act, DT)
     eager = np.stack([np.asarray(ss.simulate(act, v, dt=DT, drive=d))
                       for v, d in zip(volts, drives, strict=True)])
     # Same numbers up to floating-point reassociation by XLA: 1e-13 of the trace's scale
     # (measured ≤ 3e-21 m on ~1e-6 m traces).
     tol = {"rtol": 0.0, "atol": 1e-13 * np.abs(eager).max()}
-    jitted = jax.jit(lambda a, v, d: ss.simulate(a, v, dt=DT, drive=d))
+    jitted = jax.jit(lambda a, v, d: ss.simulate(a, v, dt=DT, drive=d, stepping=plan))
     for i in range(3):
         np.testing.assert_allclose(jitted(act, volts[i], drives[i]), eager[i], **tol)
     mapped = jax.vmap(lambda v, d: ss.simulate(act, v, dt=DT, drive=d))(

@@ -112,10 +112,12 @@ def user_errors():
     from ..files import InputOverwriteError, OutputExistsError, OutputPathError
     from ..io import RecordingError
     from ..params import ParameterError
+    from ..simulate import NonFiniteSimulation
+    from ..stepping import SteppingError
 
     return (RecordingError, RecordingErrors, ParameterError, OutputExistsError,
             InputOverwriteError, OutputPathError, IsADirectoryError, NotADirectoryError,
-            FileNotFoundError, PermissionError)
+            FileNotFoundError, PermissionError, NonFiniteSimulation, SteppingError)
 
 
 def _error_message(err: BaseException) -> str:

@@ -66,7 +66,14 @@ def simulate_command(
     sample_rate: float = typer.Option(25000.0, help="Sample rate of the generated drive [Hz]."),
     t0: float = typer.Option(2e-3, help="Step time of a step drive [s]."),
     unit: Unit = typer.Option(Unit.um, help="Unit of the written position column."),
-    substeps: int = typer.Option(0, help="RK4 sub-steps per sample (0: the default)."),
+    max_step: float = typer.Option(
+        0.0, "--max-step", help="Longest internal step [s] (0: from the model's fastest "
+        "time scale; refined intervals and located slip reversals either way)."),
+    substeps: int = typer.Option(0, help="Fixed RK4 sub-steps per sample, never refined "
+                                 "(0: automatic; for convergence studies)."),
+    error_estimate: bool = typer.Option(
+        False, "--error-estimate", help="Also estimate how far the trace is from converged "
+        "(step doubling; about two more simulations) and print it in nm."),
     zba_surface: Path | None = typer.Option(
         None, "--zba-surface", help="z_ba surface JSON (stickslip zba-surface): z_ba then "
         "depends on the drive's amplitude, frequency and direction."),
@@ -82,6 +89,8 @@ def simulate_command(
         # Every option and output is checked before anything is read or computed.
         if substeps < 0:
             raise fail("--substeps must be ≥ 0 (0 selects the default).")
+        if not (max_step >= 0 and max_step < float("inf")):
+            raise fail(f"--max-step must be a time ≥ 0 [s] (0: from the model), got {max_step}.")
         if voltage_from is None:
             _check_generated(waveform, amplitude, frequency, duration, sample_rate)
         inputs = [p for p in (params, voltage_from, zba_surface) if p is not None]
@@ -94,11 +103,19 @@ def simulate_command(
             rec = _generated(signals, waveform, amplitude, frequency, direction, duration,
                              sample_rate, t0)
         setup_jax()
-        from ..simulate import DEFAULT_SUBSTEPS, simulate_recording
+        from ..simulate import drive_context, estimate_error, simulate_recording
+        from ..stepping import Stepping
 
         actuator = load_actuator(params, zba_surface)
+        stepping = (Stepping.uniform(substeps) if substeps
+                    else Stepping(max_step=max_step or None))
         with status(f"simulating {rec.n} samples ({rec.regime})..."):
-            q = simulate_recording(actuator, rec, substeps=substeps or DEFAULT_SUBSTEPS)
+            q = simulate_recording(actuator, rec, stepping=stepping)
+        if error_estimate:
+            with status("estimating the numerical error (step doubling)..."):
+                err = estimate_error(actuator, rec.voltage_V, dt=rec.dt,
+                                     drive=drive_context(rec), stepping=stepping)
+            typer.echo(f"numerical error estimate: {err * 1e9:.3g} nm RMS (offset removed)")
         result = rec.with_position_m(q, unit=unit.value)
         written = io.save_recording(result, out, force=force, inputs=inputs)
         typer.echo(f"wrote {written} ({rec.n} samples, q from {q.min() * 1e6:.4g} to "

@@ -25,11 +25,15 @@ def _finite(x):
     return x if np.isfinite(x) else None
 
 
-def _per_recording(nrmse, analyses) -> list[dict]:
-    return [{"recording": a.recording, "regime": a.regime, "nrmse": float(n),
+def _per_recording(nrmse, analyses, numerical=None) -> list[dict]:
+    rows = [{"recording": a.recording, "regime": a.regime, "nrmse": float(n),
              "chi2_per_sample": a.chi2, "noise_nm": a.noise_m * 1e9,
              "rms_residual_nm": a.rms_residual_m * 1e9}
             for a, n in zip(analyses, nrmse, strict=True)]
+    if numerical is not None:
+        for row, e in zip(rows, numerical, strict=True):
+            row["numerical_error_nm"] = float(e) * 1e9
+    return rows
 
 
 def _evidence(c) -> dict:
@@ -61,7 +65,11 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "missing_physics": missing,
         "final": {"nrmse": float(d.nrmse_final.mean()), "chi2_per_sample": d.chi2_final,
                   "terms": d.terms,
-                  "per_recording": _per_recording(d.nrmse_final, d.analyses_final)},
+                  "per_recording": _per_recording(d.nrmse_final, d.analyses_final,
+                                                  d.numerical_error_m)},
+        # The simulator's own error at the final model (step doubling) beside the noise.
+        "numerical_floor_nm": (None if d.numerical_error_m is None
+                               else float(np.max(d.numerical_error_m)) * 1e9),
         "verdict": d.verdict,
         "criterion": CRITERION,
         "score_test": f"Lagrange-multiplier score of each entry's first-order signature, "

@@ -72,7 +72,7 @@ import numpy as np
 
 from ..identify.dataset import Dataset
 from ..identify.parameters import SCALE_INVARIANT, ParameterMap, ParameterSpec
-from ..identify.residuals import TraceResiduals
+from ..identify.residuals import TraceResiduals, dataset_plan, numerical_error
 from ..identify.solve import solve_least_squares, value_and_jacobian
 from ..identify.steps import DYNAMICS, STEPS, identify
 from ..model.actuator import Actuator
@@ -225,6 +225,9 @@ class Diagnosis:
     peaks_Hz: list[float] = field(default_factory=list)
     """Peaks of the baseline's residual spectrum shared by several recordings [Hz]:
     candidates for an unmodelled resonance (:func:`~.locate.residual_peaks`)."""
+    numerical_error_m: np.ndarray | None = None
+    """Per recording: the simulator's error at the final model, RMS, offset removed [m]
+    (step doubling, :func:`~stickslip_jax.identify.residuals.numerical_error`)."""
 
 
 def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
@@ -244,7 +247,7 @@ class _Problem:
         self.n_obs = int(data.mask.sum())
 
     def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:
-        return WhitenedResiduals(TraceResiduals(pmap, self.data, in_metres=True),
+        return WhitenedResiduals(TraceResiduals.make(pmap, self.data, in_metres=True),
                                  jnp.asarray(1.0 / self.sigmas))
 
     def evaluate(self, act: Actuator):
@@ -948,8 +951,13 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         verdict = "augmented"
     else:
         verdict = "baseline adequate"
+    # The simulator's own error at the final model (step doubling), next to the noise.
+    numerical = numerical_error(act, data, dataset_plan(act, data))
+    say(f"numerical floor: the simulator's error at the final model is at most "
+        f"{numerical.max() * 1e9:.3g} nm RMS per recording (noise: "
+        f"{sigmas.min() * 1e9:.3g}-{sigmas.max() * 1e9:.3g} nm)")
     timings["total_s"] = time.perf_counter() - t_all
     return Diagnosis(data, sigmas, baseline, act, nrmse0, nrmse_f, chi2_0, rss_final / n_obs,
                      analyses0, analyses_f, mismatch, accepted, rounds, not_testable,
                      unexplained, verdict, q0, qf, _terms(act), timings, notes,
-                     [float(p) for p in hints["peaks_Hz"]])
+                     [float(p) for p in hints["peaks_Hz"]], numerical)

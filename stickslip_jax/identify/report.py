@@ -64,6 +64,7 @@ def fit_summary(result) -> dict:
     data = result.data
     recs = {}
     floors = []
+    numerical = result.numerical_error_m
     for b, rec in enumerate(data.recordings):
         q = result.q_sim[b, : rec.n]
         diff = q - rec.position_m
@@ -76,6 +77,9 @@ def fit_summary(result) -> dict:
             "rms_residual_nm": float(np.sqrt(np.mean(diff**2)) * 1e9),
             "noise_floor_nm": sigma * 1e9,
             "noise_floor_nrmse": float(sigma / data.scale[b]),
+            # The simulator's own error at the fit (step doubling), next to the noise.
+            "numerical_error_nm": (None if numerical is None
+                                   else float(numerical[b]) * 1e9),
         }
     params = {}
     unc = result.uncertainty
@@ -102,6 +106,8 @@ def fit_summary(result) -> dict:
         "converged": result.converged,
         "overall": {"nrmse": nrmse, "noise_floor_nrmse": floor,
                     "nrmse_over_floor": nrmse / floor if floor > 0 else None,
+                    "numerical_floor_nm": (None if numerical is None
+                                           else float(np.max(numerical)) * 1e9),
                     "residual_sigma_nm": unc.sigma * 1e9 if unc else None},
         "notes": list(result.notes),
         "fixed": {k: float(v) for k, v in result.fixed.items()},

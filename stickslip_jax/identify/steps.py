@@ -35,7 +35,14 @@ from .initial import (
     scale_to_step_mode,
 )
 from .parameters import SCALE_INVARIANT, ParameterMap, ParameterSpec, _getter
-from .residuals import DEFAULT_W_PSD, TraceResiduals, nrmse_per_recording, simulate_dataset
+from .residuals import (
+    DEFAULT_W_PSD,
+    TraceResiduals,
+    dataset_plan,
+    nrmse_per_recording,
+    numerical_error,
+    simulate_dataset,
+)
 from .solve import SolveResult, solve_least_squares
 from .uncertainty import Uncertainty, parameter_uncertainty
 
@@ -72,6 +79,9 @@ class Identification:
     notes: list[str] = field(default_factory=list)
     q_sim: np.ndarray | None = None
     fixed: dict[str, float] = field(default_factory=dict)
+    numerical_error_m: np.ndarray | None = None
+    """Per recording: how far the simulator's trace at the fit is from converged, RMS,
+    offset removed [m] (step doubling; :func:`~.residuals.numerical_error`)."""
 
     @property
     def converged(self) -> bool:
@@ -206,7 +216,7 @@ def identify(
             continue
         sub = Dataset.from_recordings(subset)
         pmap = ParameterMap.make(act, free, extra)
-        res = TraceResiduals(pmap, sub, **weights)
+        res = TraceResiduals.make(pmap, sub, **weights)
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=name,
                                   echo=say)
@@ -220,9 +230,10 @@ def identify(
         last = (res, out)
 
     if not uncertainty:
-        q_sim = np.asarray(eqx.filter_jit(lambda a: simulate_dataset(a, data))(act))
+        plan = dataset_plan(act, data)
+        q_sim = np.asarray(eqx.filter_jit(lambda a: simulate_dataset(a, data, plan=plan))(act))
         return Identification(act, reports, data, nrmse_per_recording(q_sim, data), None,
-                              notes, q_sim, fix)
+                              notes, q_sim, fix, numerical_error(act, data, plan, q_sim))
     # Final evaluation and uncertainty on every recording with every fitted quantity.
     free_all = free_dynamics() + ["pi_weights"] + free_friction() + list(extra)
     t0 = time.perf_counter()
@@ -237,12 +248,14 @@ def identify(
         resid = res.in_metres_rows(out.residual)
     else:
         say("[uncertainty] Jacobian at the optimum...")
-        final = TraceResiduals(ParameterMap.make(act, free_all, extra), data,
+        final = TraceResiduals.make(ParameterMap.make(act, free_all, extra), data,
                                in_metres=True)
         pmap, theta = final.pmap, final.pmap.zeros()
         jac = np.asarray(jax.jit(jax.jacfwd(final))(theta))
         resid = np.asarray(final(theta))
-    q_sim = np.asarray(jax.jit(lambda th: simulate_dataset(pmap.actuator(th), data))(theta))
+    plan = dataset_plan(pmap.actuator(theta), data)
+    q_sim = np.asarray(jax.jit(lambda th: simulate_dataset(pmap.actuator(th), data, plan=plan))(
+        theta))
     phys = pmap.physical(theta)
     values = np.concatenate([np.atleast_1d(phys[n]) for n in pmap.names])
     # Real samples minus one fitted offset per recording.
@@ -251,4 +264,7 @@ def identify(
                                 n_obs=n_obs)
     say(f"[uncertainty] done in {time.perf_counter() - t0:.1f} s")
     nrmse = nrmse_per_recording(q_sim, data)
-    return Identification(act, reports, data, nrmse, unc, notes, q_sim, fix)
+    numerical = numerical_error(pmap.actuator(theta), data, plan, q_sim)
+    say(f"[numerics] simulator error at the fit (step doubling): at most "
+        f"{numerical.max() * 1e9:.3g} nm RMS per recording")
+    return Identification(act, reports, data, nrmse, unc, notes, q_sim, fix, numerical)

@@ -7,7 +7,7 @@ the friction law are computed once per stage, not once per state component):
     y = [x1, v1, x2, v2, z, input-stage states..., extension states...]
 
 The hysteresis memory ``p`` (play-operator states [V]) is not integrated but
-committed once per sub-step (MODEL.md "State and input").
+committed once per sub-step (docs/model.md "State and input").
 """
 
 from __future__ import annotations
@@ -143,6 +143,44 @@ class Actuator(eqx.Module):
                 start += e.n_states
         return y
 
+    def velocity_kink(self, y, drive: DriveContext):
+        """How sharply the vector field bends where the relative velocity ``v1 − v2``
+        changes sign, in state ``y`` [-]: the friction law's kink at its strain, plus
+        any extension's (extra contacts). 0 where the field is smooth in ``v1 − v2``."""
+        kink = self.friction.velocity_kink(y[4], drive)
+        if self.extensions:
+            start = N_CORE + self.input_stage.n_states
+            for e in self.extensions:
+                if e.n_states and type(e).velocity_kink is not AbstractExtension.velocity_kink:
+                    kink = kink + e.velocity_kink(y[start : start + e.n_states], drive)
+                start += e.n_states
+        return kink
+
+    def switches(self, y, ydot, drive: DriveContext):
+        """Switching functions of the contact and their time derivatives, ``(g, ġ)``.
+
+        ``g[0] = ẋ = v1 − v2`` [m/s] (a slip reversal where the friction law bends,
+        :meth:`velocity_kink`), then ``|z| − z_s`` [m] for each strain switch ``z_s`` of
+        the law (:meth:`AbstractFriction.strain_switches`). ``ydot`` is ``dy/dt`` at
+        ``y``. The simulator locates sign changes of these inside a sub-step.
+        """
+        z = y[4]
+        g = [y[1] - y[3]]
+        rate = [ydot[1] - ydot[3]]
+        for z_s in self.friction.strain_switches(drive):
+            g.append(jnp.abs(z) - z_s)
+            rate.append(jnp.sign(z) * ydot[4])
+        return jnp.stack(g), jnp.stack(rate)
+
+    def switch_active(self, y, drive: DriveContext):
+        """Which of :meth:`switches` change the vector field's form at ``y`` [bool]:
+        the reversal where the law bends there, a strain switch where ``z`` and ``ẋ``
+        share a sign (elsewhere α is 0 on both sides)."""
+        active = [self.velocity_kink(y, drive) > 0]
+        same = (y[1] - y[3]) * y[4] > 0
+        active += [same for _ in self.friction.strain_switches(drive)]
+        return jnp.stack(active)
+
     def commit_memory(self, y, memory, u_command):
         """Hysteresis memory once the piezo voltage has reached its end-of-step value."""
         return self.hysteresis.update(memory, self.piezo_voltage(y, u_command))
@@ -157,7 +195,7 @@ class Actuator(eqx.Module):
         return q
 
     def initial_state(self, u0, drive: DriveContext):
-        """Rest under ``u0`` [V] (MODEL.md): plays as if risen from 0, static equilibrium.
+        """Rest under ``u0`` [V] (docs/model.md): plays as if risen from 0, static equilibrium.
 
         ``v1 = v2 = 0``, ``x2 = 0``, ``z`` carries ``−F_ext``, and
         ``x1 = Γ[U](0) − (Kact2·N − F_ext)/Kp``. Returns ``(state, memory)``.

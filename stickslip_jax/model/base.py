@@ -69,7 +69,7 @@ class AbstractHysteresis(eqx.Module):
 
     The memory (e.g. play-operator states [V]) is carried by the simulator and
     committed once per sub-step: ``output`` is evaluated with the memory of the
-    sub-step's start (see MODEL.md "State and input").
+    sub-step's start (see docs/model.md "State and input").
     """
 
     @property
@@ -94,7 +94,7 @@ class AbstractFriction(eqx.Module):
     """A friction law with one internal (bristle / elastic-strain) state ``z`` [m].
 
     The friction force acts on the piezo element with a minus sign and on the slider
-    with a plus sign (MODEL.md: ``Mp·ẍ1 = ... − Ff``, ``Ms·ẍ2 = Ff + ...``).
+    with a plus sign (docs/model.md: ``Mp·ẍ1 = ... − Ff``, ``Ms·ẍ2 = Ff + ...``).
     """
 
     @abc.abstractmethod
@@ -116,6 +116,23 @@ class AbstractFriction(eqx.Module):
     @abc.abstractmethod
     def stiffness(self, drive: DriveContext):
         """Small-motion contact stiffness dFf/dz [N/m] (for linearisation)."""
+
+    @abc.abstractmethod
+    def strain_switches(self, drive: DriveContext) -> tuple:
+        """Strain magnitudes |z| [m] at which ``ż`` changes form while ``z`` and ``ẋ``
+        share a sign (the elasto-plastic break-away ``z_ba``, where α leaves 0); empty
+        for a law that is smooth in ``z``. The simulator locates crossings of these
+        inside a sub-step (:mod:`stickslip_jax.stepping`)."""
+
+    @abc.abstractmethod
+    def velocity_kink(self, z, drive: DriveContext):
+        """How sharply ``ż`` bends where the relative velocity ``ẋ`` changes sign [-].
+
+        The magnitude of the jump of ``∂ż/∂ẋ`` across ``ẋ = 0`` at strain ``z`` [m]: 0
+        where the rate is smooth in ``ẋ`` there (pure elastic stick), positive where a
+        sign reversal ends or starts a slip. The simulator locates a reversal inside a
+        sub-step only where this is positive (:mod:`stickslip_jax.simulate`).
+        """
 
 
 class AbstractInputStage(eqx.Module):
@@ -212,6 +229,12 @@ class AbstractExtension(eqx.Module):
         unchanged; extra friction contacts saturate their strains here). ``xdot`` is
         the relative velocity v1 − v2 [m/s]."""
         return state
+
+    def velocity_kink(self, state, drive: DriveContext):
+        """Jump of the states' rates' slope across ``ẋ = 0`` [-] (default 0: smooth;
+        extra friction contacts report theirs, see
+        :meth:`AbstractFriction.velocity_kink`)."""
+        return 0.0
 
 
 class AbstractOutputMap(eqx.Module):

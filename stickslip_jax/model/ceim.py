@@ -18,7 +18,7 @@ steady state is ``z_p = μ·F/σ0``.
 
 Non-smooth parts, as in :mod:`stickslip_jax.model.friction`: α is the contract's C¹
 sine ramp between z_ba and |z_ss| (applied only when z and ẋ share a sign); after
-each sub-step |z| is clipped at ``max(|z_ss|, z_p)``: at |z_ss| as MODEL.md asks of
+each sub-step |z| is clipped at ``max(|z_ss|, z_p)``: at |z_ss| as docs/model.md asks of
 the elasto-plastic family, but never below the plastic steady state, so that the
 contact can always carry its Coulomb force μ·F.
 """
@@ -139,3 +139,11 @@ class CEIMElastoPlastic(AbstractFriction):
 
     def stiffness(self, drive):
         return self.sigma0()
+
+    def strain_switches(self, drive):
+        return (self.z_ba(drive),)
+
+    def velocity_kink(self, z, drive):
+        # As the elasto-plastic law, with the plastic strain μ·F/σ0 in the denominator.
+        alpha = transition_alpha(jnp.abs(z), self.z_ba(drive), self.zss_magnitude(0.0, drive))
+        return alpha * jnp.abs(z) / self.plastic_strain()

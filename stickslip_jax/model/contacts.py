@@ -67,6 +67,9 @@ class ExtraContacts(AbstractExtension):
     def project(self, state, xdot, drive: DriveContext):
         return self._each(lambda c, z: c.project(z, xdot, drive), state)
 
+    def velocity_kink(self, state, drive: DriveContext):
+        return jnp.sum(self._each(lambda c, z: c.velocity_kink(z, drive), state))
+
     def forces(self, states, core: CoreState, drive: DriveContext):
         """Friction force of each extra contact [N] (for inspection)."""
         xdot = core.v1 - core.v2

@@ -105,6 +105,17 @@ class AbstractElastoPlastic(AbstractFriction):
     def stiffness(self, drive):
         return self.rho0
 
+    def strain_switches(self, drive):
+        # α is 0 up to z_ba and C¹ there (second derivative jumps; a step at ratio 1).
+        # |z_ss| is approached, never reached, in continuous time: no event there.
+        return (self.z_ba(drive),)
+
+    def velocity_kink(self, z, drive):
+        # ∂ż/∂ẋ is 1 on the side where ẋ and z differ in sign (α = 0) and 1 − α·|z|/|z_ss|
+        # on the other: the jump is α·|z|/|z_ss|, zero in the elastic range |z| ≤ z_ba.
+        zss = self.zss_magnitude(0.0, drive)
+        return transition_alpha(jnp.abs(z), self.z_ba(drive), zss) * jnp.abs(z) / zss
+
     def coulomb_force(self, drive: DriveContext):
         """Kinetic (Coulomb) friction level ``f_c = ρ0·z_ba/zba_ratio`` [N]."""
         return self.rho0 * self.z_ba(drive) / self.zba_ratio
@@ -210,6 +221,13 @@ class LuGre(AbstractFriction):
 
     def stiffness(self, drive):
         return self.sigma0
+
+    def strain_switches(self, drive):
+        return ()
+
+    def velocity_kink(self, z, drive):
+        # ż = ẋ − σ0·|ẋ|·z/g(ẋ): ∂ż/∂ẋ = 1 ∓ σ0·z/g(0) on either side of ẋ = 0.
+        return 2.0 * self.sigma0 * jnp.abs(z) / self._g(0.0)
 
 
 class ConstantZssElastoPlastic(AbstractElastoPlastic):

@@ -17,7 +17,7 @@ plots); they are chosen here so that the actuator scans at 20 V and steps at 40 
 linear part of 20 nm/V and 5 nm/V spread over the plays; z_ba = 0.40 µm forward,
 0.45 µm backward.
 
-The table/spectrum disagreement (MODEL.md): the printed table gives linearised modes
+The table/spectrum disagreement (docs/model.md): the printed table gives linearised modes
 at about 565 Hz and 17 kHz and an antiresonance of q = x1 + x2 at about 850 Hz, not
 the printed 595 Hz, 1633 Hz and 725 Hz. No positive parameter set of this model can
 put an antiresonance between two resonances at those three frequencies (see

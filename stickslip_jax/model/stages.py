@@ -29,7 +29,7 @@ class IdentityInput(AbstractInputStage):
 
 
 class IdentityOutput(AbstractOutputMap):
-    """The sensor reads q = x1 + x2 exactly (MODEL.md "Output")."""
+    """The sensor reads q = x1 + x2 exactly (docs/model.md "Output")."""
 
     def __call__(self, t, q):
         return q

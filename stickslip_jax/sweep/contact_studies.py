@@ -29,7 +29,7 @@ from ..model.base import DriveContext
 from ..model.ceim import CEIMElastoPlastic
 from ..model.contacts import multi_contact
 from ..signals import DEFAULT_SAMPLE_RATE_HZ
-from ..simulate import DEFAULT_SUBSTEPS, simulate_states
+from ..simulate import simulate_states
 from .threshold import step_vs_amplitude, zero_amplitude_threshold
 
 
@@ -162,7 +162,7 @@ def force_vs_amplitude(actuator: Actuator, amplitudes, frequency_Hz: float, *,
                        k_load: float, periods: int = 40, average: int = 5,
                        direction: str = "forward",
                        sample_rate_Hz: float = DEFAULT_SAMPLE_RATE_HZ,
-                       substeps: int = DEFAULT_SUBSTEPS) -> ForceCurve:
+                       stepping=None) -> ForceCurve:
     """Force generated against a load spring ``k_load`` [N/m] by a sawtooth of each
     amplitude [V] (one vmapped simulation over amplitudes per model).
 
@@ -188,7 +188,7 @@ def force_vs_amplitude(actuator: Actuator, amplitudes, frequency_Hz: float, *,
         def slider_position(u, amplitude):
             drive = DriveContext.make(backward=backward, amplitude=amplitude,
                                       frequency=frequency_Hz)
-            return simulate_states(act, u, dt=dt, drive=drive, substeps=substeps).x2
+            return simulate_states(act, u, dt=dt, drive=drive, stepping=stepping).x2
 
         x2 = np.asarray(jax.vmap(slider_position)(volts, jnp.asarray(amplitudes)))
         return x2[:, 1 : periods * per + 1].reshape(len(amplitudes), periods, per).mean(-1)

@@ -34,14 +34,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from ..model.actuator import Actuator
 from ..model.base import DriveContext
 from ..signals import DEFAULT_SAMPLE_RATE_HZ
-from ..simulate import (
-    DEFAULT_SUBSTEPS,
-    default_batching,
-    over_rows,
-    rest_carry,
-    sample_stepper,
-)
-from ..solvers import RK4, ExplicitRK
+from ..simulate import check_finite, default_batching, over_rows, plan_steps, rest_carry
+from ..stepping import Stepping, StepPlan, sample_stepper
 from .grid import DriveGrid
 
 
@@ -81,13 +75,13 @@ def _rest(actuator, u0, drives):
 
 
 @eqx.filter_jit
-def _segment(actuator, carry, volts, dt, drives, substeps, solver, mesh=None):
+def _segment(actuator, carry, volts, dt, drives, plan, mesh=None):
     """One segment of every slot. With ``mesh`` (CPU, native loops) each device runs its
     own slots one after the other (``lax.map`` inside ``shard_map``), else one vmapped
     scan over all slots (:func:`~stickslip_jax.simulate.default_batching` says why)."""
 
     def one(c, v, d):
-        step = sample_stepper(actuator, dt, d, substeps, solver)
+        step = sample_stepper(actuator, dt, d, plan)
         return jax.lax.scan(step, c, (v[:-1], v[1:]))
 
     if mesh is None:
@@ -127,7 +121,7 @@ def _drives(amplitude, frequency, backward) -> DriveContext:
 
 def run_grid(actuator: Actuator, grid: DriveGrid, *, periods: int = 10,
              sample_rate_Hz: float = DEFAULT_SAMPLE_RATE_HZ, chunk: int | None = None,
-             segment: int = 250, substeps: int = DEFAULT_SUBSTEPS, solver: ExplicitRK = RK4,
+             segment: int = 250, stepping: Stepping | StepPlan | None = None,
              reduce: Callable[[int, np.ndarray], object] | None = None,
              progress: Callable[[int, int], None] | None = None,
              ) -> tuple[list, SweepRun]:
@@ -140,7 +134,11 @@ def run_grid(actuator: Actuator, grid: DriveGrid, *, periods: int = 10,
     values in grid order and a :class:`SweepRun`.
 
     ``chunk`` (slots side by side) defaults to :func:`auto_chunk`; a given value is an
-    upper bound on memory (state and one segment of output per slot).
+    upper bound on memory (state and one segment of output per slot). ``stepping``:
+    the simulator's internal steps (default :data:`~stickslip_jax.stepping.DEFAULT_STEPPING`).
+
+    Raises :class:`~stickslip_jax.simulate.NonFiniteSimulation` when a point's trace
+    goes non-finite: a sweep never returns a NaN as a result.
     """
     if periods < 1:
         raise ValueError("periods must be ≥ 1")
@@ -150,6 +148,8 @@ def run_grid(actuator: Actuator, grid: DriveGrid, *, periods: int = 10,
     devices = jax.devices()
     n_dev = len(devices)
     need = samples_needed(grid.frequency_Hz, periods, sample_rate_Hz)
+    plan = plan_steps(actuator, 1.0 / sample_rate_Hz, stepping=stepping,
+                      samples=int(need.sum()))
     chunk = auto_chunk(need, n_dev, limit=chunk)
     mesh = Mesh(np.array(devices), ("points",))
     sharding = NamedSharding(mesh, PartitionSpec("points"))
@@ -199,10 +199,16 @@ def run_grid(actuator: Actuator, grid: DriveGrid, *, periods: int = 10,
         k = (have - 1)[:, None] + steps[None, :]
         volts = sawtooth_samples(amp, freq, back, k, sample_rate_Hz)
         carry, q = _segment(actuator, carry, jax.device_put(jnp.asarray(volts), sharding), dt,
-                            jax.device_put(_drives(amp, freq, back), sharding), substeps,
-                            solver, mesh if mapped else None)
+                            jax.device_put(_drives(amp, freq, back), sharding), plan,
+                            mesh if mapped else None)
         segments_run += 1
         q = np.asarray(q)
+        live = point >= 0
+        if not np.all(np.isfinite(q[live])):
+            i = int(point[live][~np.all(np.isfinite(q[live]), axis=1)][0])
+            check_finite(q[live], actuator, plan, 1.0 / sample_rate_Hz,
+                         what=f"the sweep point {grid.amplitude_V[i]:g} V, "
+                              f"{grid.frequency_Hz[i]:g} Hz")
         finished = []
         for s in np.flatnonzero(point >= 0):
             traces[s].append(q[s])

@@ -12,7 +12,6 @@ import numpy as np
 from ..files import atomic_write_text, check_output_path
 from ..model.actuator import Actuator
 from ..signals import DEFAULT_SAMPLE_RATE_HZ
-from ..simulate import DEFAULT_SUBSTEPS
 from .engine import SweepRun, run_grid
 from .grid import DriveGrid
 from .velocity import PointVelocity, steady_velocity
@@ -95,7 +94,7 @@ class VelocityMap:
 
 def velocity_map(actuator: Actuator, grid: DriveGrid, *, periods: int = 10, settle: int = 2,
                  sample_rate_Hz: float = DEFAULT_SAMPLE_RATE_HZ, chunk: int | None = None,
-                 segment: int = 250, substeps: int = DEFAULT_SUBSTEPS,
+                 segment: int = 250, stepping=None,
                  progress: Callable[[int, int], None] | None = None) -> VelocityMap:
     """Simulate the grid (:func:`run_grid`) and measure each point's steady-state
     velocity phase-locked over periods ``settle+1 .. periods``."""
@@ -104,6 +103,6 @@ def velocity_map(actuator: Actuator, grid: DriveGrid, *, periods: int = 10, sett
         return steady_velocity(q, float(grid.frequency_Hz[i]), sample_rate_Hz, periods, settle)
 
     points, run = run_grid(actuator, grid, periods=periods, sample_rate_Hz=sample_rate_Hz,
-                           chunk=chunk, segment=segment, substeps=substeps, reduce=reduce,
+                           chunk=chunk, segment=segment, stepping=stepping, reduce=reduce,
                            progress=progress)
     return VelocityMap(grid, points, periods, settle, sample_rate_Hz, run)

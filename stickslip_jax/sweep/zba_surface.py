@@ -1,8 +1,8 @@
 """The z_ba surface: break-away displacement over the drive workspace (Lu 2015, future
 work), fitted from a grid of stepping recordings.
 
-1. :func:`fit_zba_points`: z_ba of every recording, all in one ``vmap``-ped
-   optimistix Levenberg-Marquardt solve (one parameter per recording, everything else
+1. :func:`fit_zba_points`: z_ba of every recording, in one compiled batch of
+   optimistix Levenberg-Marquardt solves (one parameter per recording, everything else
    fixed), with its standard error from the Jacobian at the optimum.
 2. :func:`fit_zba_surface`: per direction, a quadratic in amplitude and log10
    frequency (both standardised) by weighted least squares on the points the data
@@ -29,8 +29,15 @@ from jaxtyping import Array, Float
 from ..files import atomic_write_text, check_output_path
 from ..model.base import DriveContext
 from ..model.friction import AbstractElastoPlastic, ElastoPlastic
-from ..simulate import DEFAULT_SUBSTEPS, _model_output, drive_context, pad_voltages, stack_drives
-from ..solvers import RK4
+from ..simulate import (
+    _model_output,
+    default_batching,
+    drive_context,
+    over_rows,
+    pad_voltages,
+    plan_steps,
+    stack_drives,
+)
 
 N_TERMS = 6  # 1, a, l, a², a·l, l²
 FORM = ("z_ba = c0 + c1*a + c2*l + c3*a^2 + c4*a*l + c5*l^2, a = (A - A0)/sA, "
@@ -114,9 +121,8 @@ class ZbaPoints:
         return "\n".join(rows) + "\n"
 
 
-def fit_zba_points(actuator, recordings, *, substeps: int = DEFAULT_SUBSTEPS,
-                   max_steps: int = 40) -> ZbaPoints:
-    """z_ba of each sawtooth recording in one vmapped LM solve (other parameters fixed).
+def fit_zba_points(actuator, recordings, *, stepping=None, max_steps: int = 40) -> ZbaPoints:
+    """z_ba of each sawtooth recording in one batched LM solve (other parameters fixed).
 
     Residual per recording: simulated minus measured position with its mean removed
     (one offset per recording), over the peak-to-peak of the measurement.
@@ -132,13 +138,14 @@ def fit_zba_points(actuator, recordings, *, substeps: int = DEFAULT_SUBSTEPS,
     dts = np.array([r.dt for r in recs])
     drives = stack_drives([drive_context(r) for r in recs])
     z_start = jax.vmap(actuator.friction.z_ba)(drives)
+    plan = plan_steps(actuator, dts, stepping=stepping, samples=int(volts.size))
 
     def residual(theta, args):
         v, q, m, s, dt, d, z0 = args
         zb = z0 * jnp.exp(theta[0])
         act = eqx.tree_at(lambda a: (a.friction.z_ba_forward, a.friction.z_ba_backward),
                           actuator, (zb, zb))
-        diff = (_model_output(act, v, dt, d, substeps, RK4) - q) * m
+        diff = (_model_output(act, v, dt, d, plan) - q) * m
         diff = diff - m * jnp.sum(diff) / jnp.sum(m)
         return diff / s
 
@@ -153,7 +160,11 @@ def fit_zba_points(actuator, recordings, *, substeps: int = DEFAULT_SUBSTEPS,
 
     args = (jnp.asarray(volts), jnp.asarray(meas), jnp.asarray(mask), jnp.asarray(scale),
             jnp.asarray(dts), drives, z_start)
-    theta, ok, r, jac = jax.jit(jax.vmap(solve_one))(args)
+    # One solve per recording, side by side (vmap) or one after the other (map, the CPU
+    # default: a vmapped simulation pays every refined interval of every row).
+    batching = default_batching()
+    theta, ok, r, jac = jax.jit(
+        lambda a: over_rows(lambda *row: solve_one(row), a, batching))(args)
     theta, ok, r, jac = (np.asarray(x) for x in (theta, ok, r, jac))
     z = np.asarray(z_start) * np.exp(theta)
     n = lengths.astype(float)

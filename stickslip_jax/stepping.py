@@ -1,0 +1,480 @@
+"""How the simulator steps through a sample interval.
+
+The voltage is known at the samples and linear between them, so the simulator
+integrates one sample interval at a time (a ``lax.scan`` over samples). Inside an
+interval it takes fixed Runge-Kutta sub-steps, with three refinements that make the
+result a property of the model rather than of the sample rate or of where the
+sub-step boundaries fall:
+
+- **A step size in seconds.** The sub-steps per sample follow from a longest step
+  ``max_step`` [s], by default a fixed fraction of the model's fastest time scale:
+  ``radians_per_step / ω_max`` with ``ω_max`` the spectral radius of the vector
+  field's Jacobian at rest (the piezo element's stick mode, an input stage's pole,
+  an extension's mode; :func:`fastest_rate`). The same voltage sampled at 1 kHz or
+  100 kHz is then integrated with the same step.
+- **Located events.** Where the relative velocity changes sign during a slip the
+  vector field bends (:meth:`~stickslip_jax.model.base.AbstractFriction.velocity_kink`);
+  a sub-step across the bend is redone as two steps meeting at it
+  (:func:`sample_stepper`).
+- **Refined intervals.** Each sub-step carries an embedded error estimate (classic
+  RK4 with its last stage reused at the next step's start: ``h/6·|k4 − f(y1)|``, the
+  difference to a third-order solution with the same stages). An interval whose summed
+  estimate exceeds ``tolerance`` [m] is integrated again with ``refine`` times more
+  sub-steps. In a stepping drive that is the abrupt edge and the few intervals of
+  ringing after it; the slow ramp keeps the coarse step.
+
+Decisions depend on the computed state only (no clocks), so the same inputs give the
+same trace. Where a refinement decision flips between two nearby parameter values
+the trace moves by about the tolerance, far below any sensor's noise.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .model.actuator import N_CORE, Actuator
+from .model.base import DriveContext
+from .solvers import RK4, ExplicitRK
+
+DEFAULT_RADIANS_PER_STEP = 0.5
+"""Default coarse step as a phase of the fastest mode: ``max_step = 0.5/ω_max`` [rad]."""
+
+DEFAULT_REFINE = 8
+"""Default factor of sub-steps on intervals whose error estimate exceeds the tolerance."""
+
+DEFAULT_TOLERANCE_M = 1e-11
+"""Default bound on an interval's summed local error estimate [m] (10 pm)."""
+
+FALLBACK_MAX_STEP_S = 2.5e-6
+"""Longest step [s] when the actuator's values are not known (traced under ``jit`` or
+``grad``) and no ``max_step`` is given: the default profile's own step, rounded."""
+
+MAX_PLAUSIBLE_MODE_HZ = 1e6
+"""A fastest mode above this [Hz] is refused unless the step is given explicitly: no
+stick-slip actuator rings at a megahertz, a parameter read in the wrong unit does
+(Kp in N/µm read as N/m puts the piezo mode near 16 MHz)."""
+
+MAX_SUBSTEPS_PER_CALL = 400_000_000
+"""Refuse a simulation that would take more coarse sub-steps than this (all rows of a
+batch together): at about 0.1 µs each that is a minute, and more usually means a unit
+slip in a parameter (a stiffness per µm read per m)."""
+
+
+class SteppingError(ValueError):
+    """A simulation that cannot be stepped as asked (too many sub-steps)."""
+
+
+def _concrete(tree) -> bool:
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
+
+
+@eqx.filter_jit
+def _rest_jacobian(actuator: Actuator, drive: DriveContext):
+    # Compiled once per model structure: planning runs at every public call.
+    y0, memory = actuator.initial_state(0.0, drive)
+    stroke = actuator.free_stroke(y0, memory, 0.0)
+    return jax.jacfwd(lambda y: actuator.vector_field(y, 0.0, stroke, drive))(y0)
+
+
+def fastest_rate(actuator: Actuator, drive: DriveContext | None = None) -> float:
+    """Spectral radius of the vector field's Jacobian at rest under 0 V [rad/s].
+
+    The fastest linear time scale of the whole model (piezo stick mode, slider on the
+    contact, input-stage poles, extension modes), from concrete parameter values.
+    """
+    # Concrete values inside someone else's trace too (a loss compiled by an optimiser
+    # that closes over a concrete actuator).
+    with jax.ensure_compile_time_eval():
+        drive = DriveContext.make() if drive is None else drive
+        jac = np.asarray(_rest_jacobian(actuator, drive), dtype=float)
+    if not np.all(np.isfinite(jac)):
+        return math.inf
+    return float(np.max(np.abs(np.linalg.eigvals(jac))))
+
+
+def time_scale_report(actuator: Actuator) -> str:
+    """The model's fast time scales in words, for messages about step sizes."""
+    p, s = actuator.piezo, actuator.slider
+    k_c = float(actuator.friction.stiffness(DriveContext.make()))
+    mp, kp, ms = float(p.Mp), float(p.Kp), float(s.Ms)
+    parts = []
+    if mp > 0 and kp >= 0:
+        parts.append(f"√(Kp/Mp) = {math.sqrt(kp / mp) / (2 * math.pi):.3g} Hz")
+    if mp > 0 and k_c >= 0:
+        parts.append(f"√(contact stiffness/Mp) = {math.sqrt(k_c / mp) / (2 * math.pi):.3g} Hz")
+    if ms > 0 and k_c >= 0:
+        parts.append(f"√(contact stiffness/Ms) = {math.sqrt(k_c / ms) / (2 * math.pi):.3g} Hz")
+    try:
+        rate = fastest_rate(actuator)
+        parts.append(f"fastest mode of the linearised model {rate / (2 * math.pi):.3g} Hz")
+    except Exception:  # noqa: BLE001 - a report must not fail where the model does
+        pass
+    return "; ".join(parts)
+
+
+class StepPlan(eqx.Module):
+    """A resolved stepping (all static): what one compiled simulation does.
+
+    Attributes
+    ----------
+    substeps: coarse sub-steps per sample interval [-].
+    refine: sub-step factor on intervals whose estimate exceeds ``tolerance`` (1: never).
+    tolerance: bound on an interval's summed local error estimate [m].
+    radians_per_step: the coarse step as a phase of the fastest mode [rad]; a velocity
+        error [m/s] enters the estimate times ``coarse step/radians_per_step`` (1/ω_max
+        for a planned step), so that it counts in metres.
+    solver: the Runge-Kutta tableau, with or without event location.
+
+    Only integers and user settings: a plan does not change with the parameter values
+    unless the sub-step count does, so compiled simulations are reused.
+    """
+
+    substeps: int = eqx.field(static=True)
+    refine: int = eqx.field(static=True, default=DEFAULT_REFINE)
+    tolerance: float = eqx.field(static=True, default=DEFAULT_TOLERANCE_M)
+    radians_per_step: float = eqx.field(static=True, default=DEFAULT_RADIANS_PER_STEP)
+    solver: ExplicitRK = eqx.field(static=True, default=RK4)
+
+    def __check_init__(self):
+        if self.substeps < 1 or self.refine < 1:
+            raise ValueError(f"substeps and refine must be ≥ 1, got {self.substeps}, "
+                             f"{self.refine}")
+
+    @property
+    def refines(self) -> bool:
+        return self.refine > 1
+
+    def doubled(self) -> StepPlan:
+        """Twice the sub-steps, same rules (for step-doubling error estimates)."""
+        return StepPlan(2 * self.substeps, self.refine, self.tolerance,
+                        self.radians_per_step / 2, self.solver)
+
+
+class Stepping(eqx.Module):
+    """How to choose the simulator's internal steps (see the module docstring).
+
+    Attributes
+    ----------
+    max_step: longest coarse step [s]; ``None`` (default): ``radians_per_step/ω_max``
+        from the actuator's own time scales (:func:`fastest_rate`).
+    substeps: fixed coarse sub-steps per sample instead (overrides ``max_step``): for
+        convergence studies, where the step must follow the sample period.
+    refine: sub-step factor on intervals whose error estimate exceeds ``tolerance``
+        (1 switches refinement off).
+    tolerance: bound on an interval's summed local error estimate [m].
+    radians_per_step: the coarse step as a phase of the fastest mode [rad].
+    solver: Runge-Kutta tableau (default RK4, with event location).
+    """
+
+    max_step: float | None = eqx.field(static=True, default=None)
+    substeps: int | None = eqx.field(static=True, default=None)
+    refine: int = eqx.field(static=True, default=DEFAULT_REFINE)
+    tolerance: float = eqx.field(static=True, default=DEFAULT_TOLERANCE_M)
+    radians_per_step: float = eqx.field(static=True, default=DEFAULT_RADIANS_PER_STEP)
+    solver: ExplicitRK = eqx.field(static=True, default=RK4)
+
+    def __check_init__(self):
+        if self.max_step is not None and not (math.isfinite(self.max_step)
+                                              and self.max_step > 0):
+            raise ValueError(f"max_step must be a finite time > 0 [s], got {self.max_step!r}")
+        if self.substeps is not None and self.substeps < 1:
+            raise ValueError(f"substeps must be ≥ 1, got {self.substeps}")
+        if self.refine < 1:
+            raise ValueError(f"refine must be ≥ 1, got {self.refine}")
+        if not self.tolerance > 0:
+            raise ValueError(f"tolerance must be > 0 [m], got {self.tolerance!r}")
+
+    @staticmethod
+    def uniform(substeps: int, solver: ExplicitRK = RK4) -> Stepping:
+        """Exactly ``substeps`` sub-steps per sample, never refined (studies)."""
+        return Stepping(substeps=int(substeps), refine=1, solver=solver)
+
+    def longest_step(self, actuator: Actuator) -> float:
+        """The longest coarse step [s] for this actuator."""
+        rate = None
+        if _concrete(actuator):
+            rate = fastest_rate(actuator)
+            if not (math.isfinite(rate) and rate > 0):
+                raise SteppingError(
+                    "the model's linearisation at rest is not finite; check the "
+                    f"parameters ({time_scale_report(actuator)})")
+        if self.max_step is not None:
+            step = float(self.max_step)
+        elif rate is not None:
+            if rate > 2 * math.pi * MAX_PLAUSIBLE_MODE_HZ and self.substeps is None:
+                raise SteppingError(
+                    f"the model's fastest mode is {rate / (2 * math.pi) / 1e6:.3g} MHz, far "
+                    f"above any stick-slip actuator's ({time_scale_report(actuator)}): a "
+                    "unit slip? (Kp in N/µm read as N/m, Mp in g read as kg.) If it is "
+                    "meant, give the step explicitly (Stepping(max_step=...), --max-step).")
+            step = self.radians_per_step / rate
+        else:
+            step = FALLBACK_MAX_STEP_S
+        return step
+
+    def plan(self, actuator: Actuator, dt, *, samples: int | None = None) -> StepPlan:
+        """The static :class:`StepPlan` for ``actuator`` sampled every ``dt`` [s] (one
+        value, or one per row of a batch: the longest sets the sub-step count).
+
+        ``samples``: the sample intervals of the whole call (all rows), to refuse a
+        simulation of more than :data:`MAX_SUBSTEPS_PER_CALL` sub-steps up front.
+        """
+        if not _concrete(dt):
+            raise ValueError("dt is traced (inside jit/grad): plan the steps outside, "
+                             "stepping=plan_steps(actuator, dt), and pass that StepPlan")
+        dt_max = float(np.max(np.asarray(dt, dtype=float)))
+        if not (math.isfinite(dt_max) and dt_max > 0):
+            raise ValueError(f"dt must be a finite time > 0 [s], got {dt!r}")
+        step = self.longest_step(actuator)
+        if self.substeps is not None:
+            n = int(self.substeps)
+        else:
+            n = max(1, math.ceil(dt_max / step * (1 - 1e-12)))
+        if samples is not None and n * samples > MAX_SUBSTEPS_PER_CALL:
+            detail = time_scale_report(actuator) if _concrete(actuator) else ""
+            raise SteppingError(
+                f"this simulation needs {n} sub-steps per sample ({n * samples:.3g} in all, "
+                f"limit {MAX_SUBSTEPS_PER_CALL:.3g}): the step is {step * 1e9:.3g} ns for "
+                f"the model's fastest time scale"
+                + (f" ({detail})" if detail else "")
+                + ". A natural frequency far above 100 kHz usually means a unit slip "
+                "(Kp in N/µm read as N/m, Mp in g read as kg)."
+            )
+        return StepPlan(n, self.refine, self.tolerance, self.radians_per_step, self.solver)
+
+
+DEFAULT_STEPPING = Stepping()
+"""The stepping ``simulate`` and the tools use unless told otherwise."""
+
+REFERENCE_FACTOR = 16
+
+REFERENCE_STEPPING = Stepping(radians_per_step=DEFAULT_RADIANS_PER_STEP / REFERENCE_FACTOR,
+                              tolerance=DEFAULT_TOLERANCE_M / 100)
+"""For data that will judge a fit (fixtures, tests, benchmarks): every step 16x shorter
+than the default's (coarse 0.28 µs, refined 35 ns on the default profile) and a
+tolerance 100x tighter, so the data carry no trace of the fit's own discretisation
+(no "inverse crime"). About 16 times the default's cost."""
+
+
+def _hermite_root(s0, d0, s1, d1, iterations: int = 6):
+    """Root in [0, 1] of the cubic Hermite interpolant through ``(0, s0)`` and
+    ``(1, s1)`` with slopes ``d0``, ``d1`` (per unit of θ), for ``s0·s1 < 0``.
+
+    Starts at the secant root and takes ``iterations`` Newton steps, each clipped into
+    [0, 1]: a fixed count (static shapes), and differentiable, so the located time
+    carries its dependence on the parameters into the sensitivities. The divisions are
+    guarded so that the branch stays finite where it is evaluated but not taken
+    (``vmap`` turns the ``cond`` around it into a select).
+    """
+    den = s0 - s1
+    theta = jnp.clip(s0 / jnp.where(den == 0.0, 1.0, den), 0.0, 1.0)
+
+    def newton(_, theta):
+        t2 = theta * theta
+        t3 = t2 * theta
+        value = ((2 * t3 - 3 * t2 + 1) * s0 + (t3 - 2 * t2 + theta) * d0
+                 + (3 * t2 - 2 * t3) * s1 + (t3 - t2) * d1)
+        slope = ((6 * t2 - 6 * theta) * (s0 - s1) + (3 * t2 - 4 * theta + 1) * d0
+                 + (3 * t2 - 2 * theta) * d1)
+        return jnp.clip(theta - value / jnp.where(slope == 0.0, 1.0, slope), 0.0, 1.0)
+
+    # A loop, not unrolled: the unrolled steps and their tangents cost XLA seconds to
+    # compile inside the simulator's nested control flow.
+    return jax.lax.fori_loop(0, iterations, newton, theta)
+
+
+def _relative_velocity(y):
+    return y[1] - y[3]
+
+
+def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
+    """``(y, memory, u_a, du, τ0, span) ↦ (y, memory, estimate)``: the part
+    ``[τ0, τ0 + span]`` (fractions of the sample interval of ``dt`` [s], voltage
+    ``u_a + du·τ``) in ``plan.substeps`` sub-steps, switches located (if the solver
+    says so), with the summed local error estimate [m] (see the module docstring; 0
+    for tableaux other than classic RK4). The whole interval and its refined parts go
+    through this one function: one copy of the sub-step in the compiled program.
+    """
+    solver = plan.solver
+    n = plan.substeps
+    velocity_time = dt / plan.substeps / plan.radians_per_step   # 1/ω_max when planned
+    weights = jnp.stack([1.0, velocity_time, 1.0, velocity_time, 1.0])
+    # Distinct stage times of the solver (RK4: 0, 1/2, 1) and each stage's column.
+    c_unique = tuple(sorted(set(solver.c) | {1.0}))
+    column = tuple(c_unique.index(c) for c in solver.c)
+    end_column = c_unique.index(1.0)
+    grid = jnp.asarray((np.arange(n)[:, None] + np.asarray(c_unique)[None, :]) / n)
+    fast = actuator.stroke_follows_command
+    embedded = len(solver.c) == 4 and solver.order == 4
+
+    def stroke_rows(memory, u):
+        return jax.vmap(actuator.hysteresis.output, (None, 0))(
+            memory, u.reshape(-1)).reshape(u.shape)
+
+    def run(y, memory, u_a, du, tau0, span):
+        h = dt * span / n
+        fractions = tau0 + span * grid            # (n, distinct c) stage times
+        if fast:
+            # The voltage is linear, hence monotone, over the interval, and along a
+            # monotone path every play output is clip(p_start, u − r, u + r): the
+            # stroke at every stage time follows from the interval's starting memory,
+            # in one vectorised evaluation.
+            u_stage = u_a + du * fractions
+            strokes = stroke_rows(memory, u_stage)
+
+        def substep(j, state):
+            y, memory, k1, total = state
+
+            def field_at(tau, yy):
+                u = u_a + du * tau
+                return actuator.vector_field(yy, u, actuator.free_stroke(yy, memory, u), drive)
+
+            if fast:
+                u_row = jax.lax.dynamic_index_in_dim(u_stage, j, keepdims=False)
+                g_row = jax.lax.dynamic_index_in_dim(strokes, j, keepdims=False)
+
+                def on_grid(col, yy):
+                    return actuator.vector_field(yy, u_row[col], g_row[col], drive)
+            else:
+                row = jax.lax.dynamic_index_in_dim(fractions, j, keepdims=False)
+
+                def on_grid(col, yy):
+                    return field_at(row[col], yy)
+
+            stages = []
+
+            def field(i, yy):
+                stages.append(on_grid(column[i], yy))
+                return stages[-1]
+
+            y1 = actuator.project(solver.step(field, y, h, k1), drive)
+            k_end = on_grid(end_column, y1)
+            err = jnp.zeros_like(y[0])
+            if embedded:
+                # Classic RK4 against the third-order solution with weights
+                # b + (e5 − e4)/6 on its stages plus f(y1): they differ by h/6·(k4 − f(y1)).
+                err = jnp.max(jnp.abs(h / 6.0 * (stages[-1][:N_CORE] - k_end[:N_CORE]))
+                              * weights)
+            if solver.locate_events:
+                y1, k_end = _located(actuator, drive, solver, field_at, y, y1, k1, k_end,
+                                     tau0 + span * j / n, span / n, h)
+            if not fast:
+                # Committing at the end voltage leaves the stroke there, so k_end stands.
+                memory = actuator.commit_memory(y1, memory, u_a + du * (tau0 + span * (j + 1) / n))
+            return y1, memory, k_end, total + err
+
+        k0 = actuator.vector_field(y, u_a + du * tau0,
+                                   actuator.free_stroke(y, memory, u_a + du * tau0), drive)
+        # Zeros typed like the state (under shard_map a loop carry must keep the state's
+        # varying axes).
+        zero = jnp.zeros_like(y[0])
+        y, memory, _, total = jax.lax.fori_loop(0, n, substep, (y, memory, k0, zero))
+        return y, memory, total
+
+    return run
+
+
+def _crossed(actuator, drive, y, y1, k1, k_end):
+    """Which switching functions (:meth:`Actuator.switches`) changed sign from ``y`` to
+    ``y1`` where they change the field's form [bool per switch]."""
+    g0, _ = actuator.switches(y, k1, drive)
+    g1, _ = actuator.switches(y1, k_end, drive)
+    changed = g0 * g1 < 0
+
+    def matters(_):
+        return changed & (actuator.switch_active(y, drive) | actuator.switch_active(y1, drive))
+
+    return jax.lax.cond(jnp.any(changed), matters, lambda _: jnp.zeros_like(changed), None)
+
+
+def _located(actuator, drive, solver, field_at, y, y1, k1, k_end, tau0, dtau, h):
+    """The sub-step ``y → y1`` as taken, or redone as two steps meeting at the first
+    switch it crossed (a slip reversal where the law bends, a break-away strain while
+    slipping). Returns the end state and the field there."""
+    crossed = _crossed(actuator, drive, y, y1, k1, k_end)
+
+    def split(_):
+        g0, r0 = actuator.switches(y, k1, drive)
+        g1, r1 = actuator.switches(y1, k_end, drive)
+        # One root per switch, unrolled (a vmap of the unrolled Newton steps took XLA
+        # a second to compile, six times the rest of the simulator).
+        roots = jnp.stack([_hermite_root(g0[i], h * r0[i], g1[i], h * r1[i])
+                           for i in range(g0.shape[0])])
+        theta = jnp.min(jnp.where(crossed, roots, 1.0))
+        shares = jnp.stack([theta, 1.0 - theta])
+
+        def piece(p, state):
+            # One Runge-Kutta step over a share of the sub-step (the two pieces share
+            # this code: half the program to compile).
+            y_start, k_start, t_start = state
+            share = shares[p]
+            y_stop = actuator.project(solver.step(
+                lambda i, yy: field_at(t_start + solver.c[i] * share * dtau, yy),
+                y_start, share * h, k_start), drive)
+            t_stop = t_start + share * dtau
+            return y_stop, field_at(t_stop, y_stop), t_stop
+
+        t0 = tau0 + jnp.zeros_like(theta)   # typed like θ (varying axes under shard_map)
+        y_stop, k_stop, _ = jax.lax.fori_loop(0, 2, piece, (y, k1, t0))
+        return y_stop, k_stop
+
+    return jax.lax.cond(jnp.any(crossed), split, lambda _: (y1, k_end), None)
+
+
+def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan):
+    """The scan body over one sample interval: ``((y, memory), (u_a, u_b)) ↦
+    ((y, memory), q_b)`` with the voltage linear from ``u_a`` to ``u_b`` [V] over
+    ``dt`` [s] and ``q_b`` [m] the output at its end (before the output map).
+
+    Pass 0 takes the interval in ``plan.substeps`` sub-steps with error estimates.
+    With refinement (``plan.refine = r > 1``), where their sum exceeds
+    ``plan.tolerance``, passes 1..r take the interval again as r parts of
+    ``plan.substeps`` sub-steps each; otherwise they are skipped (a ``cond``: only those
+    intervals pay; under ``vmap`` it becomes a select and every interval pays every
+    pass). All passes run the same integrator, so it is compiled once.
+    """
+    run = _interval_integrator(actuator, dt, drive, plan)
+    r = plan.refine
+
+    @jax.checkpoint
+    def sample_step(carry, u_pair):
+        y, memory = carry
+        u_a, u_b = u_pair
+        du = u_b - u_a
+        if r == 1:
+            y1, memory1, _ = run(y, memory, u_a, du, 0.0, 1.0)
+        else:
+            def one_pass(p, state):
+                # state: pass 0's result and estimate, and the refined run so far.
+                y_c, mem_c, est, y_r, mem_r = state
+                first = p == 0
+
+                def go(_):
+                    y_in = jnp.where(first, y, y_r)
+                    mem_in = jnp.where(first, memory, mem_r)
+                    tau0 = jnp.where(first, 0.0, (p - 1) / r)
+                    span = jnp.where(first, 1.0, 1.0 / r)
+                    y_out, mem_out, e = run(y_in, mem_in, u_a, du, tau0, span)
+                    return (jnp.where(first, y_out, y_c), jnp.where(first, mem_out, mem_c),
+                            jnp.where(first, e, est), jnp.where(first, y, y_out),
+                            jnp.where(first, memory, mem_out))
+
+                return jax.lax.cond(first | (est > plan.tolerance), go, lambda _: state, None)
+
+            zero = jnp.zeros_like(y[0])
+            y_c, mem_c, est, y_r, mem_r = jax.lax.fori_loop(
+                0, r + 1, one_pass, (y, memory, zero, y, memory))
+            refined = est > plan.tolerance
+            y1 = jnp.where(refined, y_r, y_c)
+            memory1 = jnp.where(refined, mem_r, mem_c)
+        if actuator.stroke_follows_command:
+            memory1 = actuator.commit_memory(y1, memory, u_b)
+        q = actuator.output(y1, u_b, actuator.free_stroke(y1, memory1, u_b), drive)
+        return (y1, memory1), q
+
+    return sample_step
