@@ -62,6 +62,7 @@ from .model.extensions import (
     StructuralMode,
 )
 from .model.friction import (
+    DEFAULT_ZBA_RATIO,
     ConstantZssElastoPlastic,
     ElastoPlastic,
     LuGre,
@@ -72,6 +73,12 @@ from .model.hemisphere import TiltingHemisphere, with_hemisphere
 from .model.hysteresis import PrandtlIshlinskii, default_thresholds
 from .model.piezo import PiezoElement
 from .model.profiles import LU2015_TABLE, PROFILES, lu2015_slc1720
+from .model.registry import (
+    FRICTION_LAWS,
+    LawParameter,
+    friction_law_name,
+    register_friction_law,
+)
 from .model.slider import Slider
 from .model.stages import IdentityInput, IdentityOutput
 from .noise import noise_sigma
@@ -164,4 +171,6 @@ __all__ = [
     "CEIMElastoPlastic", "ExtraContacts", "multi_contact", "ForceCurve", "StepCurves",
     "force_vs_amplitude", "preload_study", "spread_study", "TiltingHemisphere",
     "with_hemisphere", "SMALL_LOOP_BYTES", "fast_cpu_loops",
+    "DEFAULT_ZBA_RATIO", "FRICTION_LAWS", "LawParameter", "friction_law_name",
+    "register_friction_law",
 ]

@@ -30,9 +30,11 @@ amplitude and the 0-amplitude threshold at several preloads (CEIM: z_ba and the
 contact stiffness grow with the preload, so the step falls); the same for several
 splits of the preload over the contacts of a multi-contact runner; the force
 generated against a load spring vs amplitude, with the elasto-plastic dead zone and
-LuGre (no dead zone) beside. An elasto-plastic parameter set is turned into a CEIM
-contact equal to it at --reference-preload (half of z_ba and of the stiffness growing
-with the preload), and the output says so. Writes contacts.json and three figures.
+LuGre (no dead zone) beside. A parameter set with another law (elasto-plastic, or any
+with a break-away strain) is turned into a CEIM contact with its stiffness, break-away
+strain and Coulomb level at --reference-preload (half of z_ba and of the stiffness
+growing with the preload), and the output says so. Writes contacts.json and three
+figures.
 """
 
 
@@ -77,7 +79,8 @@ def contacts_command(
 
         from ..files import atomic_write_text
         from ..model.ceim import CEIMElastoPlastic
-        from ..model.friction import AbstractElastoPlastic, LuGre
+        from ..model.friction import LuGre
+        from ..model.registry import friction_law_name
         from ..sweep import parse_values
         from ..sweep.contact_studies import (
             force_vs_amplitude,
@@ -106,15 +109,17 @@ def contacts_command(
         fr = act.friction
         if isinstance(fr, CEIMElastoPlastic):
             ceim = fr
-        elif isinstance(fr, AbstractElastoPlastic):
-            ceim = CEIMElastoPlastic.matching(fr.rho0, fr.z_ba_forward, zba_ratio=fr.zba_ratio,
-                                              preload=reference_preload)
-            notes.append(f"CEIM contact made from the elasto-plastic parameters: equal to "
-                         f"them at {reference_preload:g} N, half of z_ba and of the contact "
+        else:
+            try:
+                ceim = CEIMElastoPlastic.matching_law(fr, preload=reference_preload)
+            except ValueError as err:
+                raise fail(f"the preload study needs a CEIM contact or one to make it "
+                           f"from: {err}") from None
+            notes.append(f"CEIM contact made from the '{friction_law_name(fr)}' parameters: "
+                         f"the same stiffness, z_ba and Coulomb level at "
+                         f"{reference_preload:g} N, half of z_ba and of the contact "
                          f"stiffness growing with the preload (illustrative coefficients, "
                          f"not identified)")
-        else:
-            raise fail("the preload study needs an elasto-plastic or CEIM contact")
         act_ceim = eqx.tree_at(lambda a: a.friction, act, ceim)
         typer.echo("preload study...")
         pre = preload_study(act_ceim, loads, amps, frequency)
@@ -126,11 +131,12 @@ def contacts_command(
         spr.plot(paths["spread.png"], title=f"multi-contact runner (CEIM contacts, total "
                  f"{float(ceim.preload):g} N), {frequency:g} Hz")
         typer.echo("force generation...")
-        ep = act if isinstance(fr, AbstractElastoPlastic) else act_ceim
         fc = float(ceim.coulomb_force())
         lugre = eqx.tree_at(lambda a: a.friction, act, LuGre(
             float(ceim.sigma0()), 0.0, 0.0, fc, fc, 1e-3))
-        curves = {"elasto-plastic": force_vs_amplitude(ep, amps, frequency, k_load=k_load),
+        law = friction_law_name(fr)
+        label = "elasto-plastic" if law in ("elastoplastic", "ceim") else law
+        curves = {label: force_vs_amplitude(act, amps, frequency, k_load=k_load),
                   "LuGre (same stiffness and Coulomb level)":
                       force_vs_amplitude(lugre, amps, frequency, k_load=k_load)}
         plot_force_curves(curves, paths["force.png"])

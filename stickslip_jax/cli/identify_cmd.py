@@ -29,16 +29,24 @@ then written as params.unconverged.json, never as params.json).
 
 
 def _parse_fix(items: list[str]) -> dict[str, float]:
-    from ..identify.parameters import FITTABLE
+    from ..identify.parameters import MECHANICS, law_fittable
+    from ..model.registry import FRICTION_LAWS
     from ..params import ParameterError
 
+    # The fittable quantities of every registered law that the identification fits
+    # (the starting file says which law; identify checks the names against it).
+    may_be_zero = {}
+    for law in FRICTION_LAWS.values():
+        if any(p.step for p in law_fittable(law)):
+            for p in law_fittable(law):
+                may_be_zero.setdefault(p.name, p.fit_kind == "softplus")
+    fixable = list(MECHANICS) + list(may_be_zero)
     out = {}
     for item in items:
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep:
             raise ParameterError(f"--fix {item!r}: expected NAME=VALUE (SI), e.g. Ms=0.0247")
-        fixable = [n for n in FITTABLE if n != "pi_weights"]
         if name not in fixable:
             raise ParameterError(f"--fix {item!r}: {name!r} is not a fixable parameter; "
                                  f"choose from {', '.join(fixable)}")
@@ -46,7 +54,7 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
             out[name] = float(value)
         except ValueError:
             raise ParameterError(f"--fix {item!r}: {value!r} is not a number") from None
-        if not out[name] > 0 and name not in ("rho1", "rho2"):
+        if not out[name] > 0 and not may_be_zero.get(name, False):
             raise ParameterError(f"--fix {item!r}: {name} must be positive")
     return out
 

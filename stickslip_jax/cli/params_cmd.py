@@ -23,13 +23,14 @@ def params_command(
     list_names: bool = typer.Option(False, "--list", help="List every parameter name."),
     force: bool = typer.Option(False, "--force", help="Replace an existing output file."),
 ) -> None:
-    """Write a documented parameter profile, or list the parameter names and units."""
+    """Write a documented parameter profile, or list the parameter names and units
+    (each registered friction law's with its defaults and bounds)."""
     with reported_errors():
-        from ..params import PARAMETER_DOCS, ParameterError, save_params
+        from ..params import ParameterError, describe_parameters, save_params
 
         if list_names or out is None:
-            for name, doc in PARAMETER_DOCS.items():
-                typer.echo(f"{name:16s} {doc}")
+            for line in describe_parameters():
+                typer.echo(line)
             if out is None:
                 return
         from ..files import JSON_SUFFIXES

@@ -71,10 +71,21 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..identify.dataset import Dataset
-from ..identify.parameters import SCALE_INVARIANT, ParameterMap, ParameterSpec
+from ..identify.parameters import (
+    ParameterMap,
+    ParameterSpec,
+    law_fittable,
+    scale_invariant_names,
+)
 from ..identify.residuals import TraceResiduals, dataset_plan, numerical_error
 from ..identify.solve import solve_least_squares, value_and_jacobian
-from ..identify.steps import DYNAMICS, STEPS, identify
+from ..identify.steps import (
+    STEPS,
+    dynamics_names,
+    friction_names,
+    identify,
+    without_absent_directions,
+)
 from ..model.actuator import Actuator
 from ..model.extensions import LEARNED_FEATURES, LearnedForce
 from ..noise import noise_sigma
@@ -232,11 +243,11 @@ class Diagnosis:
 
 def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
     """The baseline's fitted quantities: dynamics (less the fixed ones), the PI
-    weights, z_ba for each direction present."""
-    names = [n for n in DYNAMICS if n not in fix] + ["pi_weights", "z_ba_forward"]
-    if any(r.drive.is_backward for r in data.recordings):
-        names.append("z_ba_backward")
-    return [n for n in names if n not in fix]
+    weights, the friction law's friction-step quantities (z_ba for each direction
+    present), as the identification's joint step frees them by default."""
+    names = dynamics_names(act, fix=fix) + ["pi_weights"] + friction_names(act, fix=fix)
+    return [n for n in without_absent_directions(names, act, data.recordings)
+            if n not in fix]
 
 
 class _Problem:
@@ -512,9 +523,14 @@ def _entry_on(init: Actuator, fitted: Actuator, slot: str) -> Actuator:
     if slot == "slider":
         return eqx.tree_at(lambda a: a.slider.F_ext, init, fitted.slider.F_ext)
     if slot == "friction":
+        # The baseline's own friction quantities (those its steps fit by default: rho0
+        # and z_ba for the paper's law) from ``init``, the entry's from ``fitted``.
         f, g = fitted.friction, init.friction
-        f = eqx.tree_at(lambda f: (f.rho0, f.z_ba_forward, f.z_ba_backward), f,
-                        (g.rho0, g.z_ba_forward, g.z_ba_backward))
+        kept = {p.attr for p in law_fittable(f)}
+        attrs = tuple(p.attr for p in law_fittable(g)
+                      if p.step and not p.on_request and p.attr in kept)
+        f = eqx.tree_at(lambda f: tuple(getattr(f, a) for a in attrs), f,
+                        tuple(getattr(g, a) for a in attrs))
         return eqx.tree_at(lambda a: a.friction, init, f)
     raise ValueError(f"unknown slot {slot!r}")
 
@@ -645,7 +661,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     data = Dataset.from_recordings(recordings)
     fix = dict(fix or {})
     notes: list[str] = []
-    if not any(n in fix for n in SCALE_INVARIANT):
+    if not any(n in fix for n in scale_invariant_names(init)):
         fix["Ms"] = float(init.slider.Ms)
         notes.append(f"Ms held at {fix['Ms']:g} kg (position data fix only ratios of the "
                      f"masses, dampings and stiffnesses).")

@@ -10,6 +10,7 @@ from ..io import Recording
 from ..linear import stick_modes
 from ..model.actuator import Actuator
 from ..model.hysteresis import PrandtlIshlinskii, default_thresholds
+from ..model.registry import held_parameters
 
 
 def resample_pi(pi: PrandtlIshlinskii, thresholds: np.ndarray) -> PrandtlIshlinskii:
@@ -101,15 +102,22 @@ def measured_step_mode(step: Recording, *, band=(100.0, 6000.0), window_s: float
 
 def scale_to_step_mode(actuator: Actuator, f_damped: float, zeta: float, *,
                        iterations: int = 4) -> tuple[Actuator, float, float]:
-    """Scale the stiffnesses (Kp, rho0) and dampings (Dp, Ds) so that the first mode of
-    the linear stick chain has damped frequency ``f_damped`` [Hz] and damping ratio
-    ``zeta`` [-]. Masses stay (they carry the scale that position data cannot fix).
+    """Scale the stiffnesses (Kp and the friction law's contact stiffnesses, rho0 for
+    the paper's law: its parameters flagged ``stiffness``) and dampings (Dp, Ds) so
+    that the first mode of the linear stick chain has damped frequency ``f_damped``
+    [Hz] and damping ratio ``zeta`` [-]. Masses stay (they carry the scale that
+    position data cannot fix).
 
     Returns the actuator and the overall stiffness and damping factors applied. Each
     factor is clipped per iteration to [0.1, 10] so a poor estimate cannot run away.
     """
     k_total, d_total = 1.0, 1.0
     act = actuator
+    contact = tuple(p.attr for p in held_parameters(actuator.friction) if p.stiffness)
+
+    def stiffnesses(a):
+        return (a.piezo.Kp, *(getattr(a.friction, attr) for attr in contact))
+
     for _ in range(iterations):
         m = stick_modes(act)
         f_model, z_model = float(m.damped_Hz[0]), float(m.damping_ratio[0])
@@ -118,8 +126,8 @@ def scale_to_step_mode(actuator: Actuator, f_damped: float, zeta: float, *,
         # Stiffness by ω², damping by √k (ζ unchanged), then damping by the ζ ratio.
         k = float(np.clip((f_damped / f_model) ** 2, 0.1, 10.0))
         d = float(np.clip(np.sqrt(k) * zeta / z_model, 0.1, 10.0))
-        act = eqx.tree_at(lambda a: (a.piezo.Kp, a.friction.rho0, a.piezo.Dp, a.slider.Ds), act,
-                          (act.piezo.Kp * k, act.friction.rho0 * k, act.piezo.Dp * d,
+        act = eqx.tree_at(lambda a: (*stiffnesses(a), a.piezo.Dp, a.slider.Ds), act,
+                          (*(x * k for x in stiffnesses(act)), act.piezo.Dp * d,
                            act.slider.Ds * d))
         k_total *= k
         d_total *= d

@@ -11,6 +11,11 @@ well-scaled coordinate ``θ`` that is 0 at the start value:
 - ``pi_cumlog``: PI weights with the loop kept monotone: the partial sums
   ``s_k = Σ_{i≤k} w_i`` stay positive as ``s_k = s_k0·exp(θ_k)``, ``w = diff(s)``.
 
+The piezo element's and the slider's quantities and the PI weights are listed here;
+a friction law's come from the law itself (its
+:class:`~stickslip_jax.model.registry.LawParameter` records: attribute, unit, bounds
+and so the transform), so any registered law can be fitted by name.
+
 The position data fix only ratios of the masses, dampings and stiffnesses (scaling
 Mp, Dp, Kp, Ms, Ds, rho0, rho1, rho2 together leaves q unchanged), so one of them
 must be fixed: by default ``Ms``, at the start value, and the tool says so.
@@ -27,52 +32,87 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model.actuator import Actuator
+from ..model.friction import ElastoPlastic
+from ..model.registry import LawParameter, held_parameters
 
-SCALE_INVARIANT = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "rho1", "rho2")
-"""Quantities only identifiable up to one common factor from position data."""
-
-
-_PATHS = {
-    "Mp": lambda a: a.piezo.Mp, "Dp": lambda a: a.piezo.Dp, "Kp": lambda a: a.piezo.Kp,
-    "Ms": lambda a: a.slider.Ms, "Ds": lambda a: a.slider.Ds,
-    "rho0": lambda a: a.friction.rho0, "rho1": lambda a: a.friction.rho1,
-    "rho2": lambda a: a.friction.rho2,
-    "z_ba_forward": lambda a: a.friction.z_ba_forward,
-    "z_ba_backward": lambda a: a.friction.z_ba_backward,
-    "zba_ratio": lambda a: a.friction.zba_ratio,
-    "pi_weights": lambda a: a.hysteresis.weights,
+_COMMON = {  # name: (getter, kind, unit)
+    "Mp": (lambda a: a.piezo.Mp, "log", "kg"),
+    "Dp": (lambda a: a.piezo.Dp, "log", "N·s/m"),
+    "Kp": (lambda a: a.piezo.Kp, "log", "N/m"),
+    "Ms": (lambda a: a.slider.Ms, "log", "kg"),
+    "Ds": (lambda a: a.slider.Ds, "log", "N·s/m"),
+    "pi_weights": (lambda a: a.hysteresis.weights, "pi_cumlog", "m/V"),
 }
+MECHANICS = ("Mp", "Dp", "Kp", "Ms", "Ds")
+"""The piezo element's and the slider's masses, dampings and stiffnesses."""
 
 
-def _getter(name: str) -> Callable[[Actuator], jax.Array]:
-    if name not in _PATHS:
-        raise KeyError(f"{name!r} is not a fittable parameter; fittable: {', '.join(_PATHS)}")
-    return _PATHS[name]
+def _law(law_or_actuator):
+    return law_or_actuator.friction if isinstance(law_or_actuator, Actuator) \
+        else law_or_actuator
 
 
-FITTABLE = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0", "rho1", "rho2", "z_ba_forward",
-            "z_ba_backward", "zba_ratio", "pi_weights")
-UNITS = {"Mp": "kg", "Dp": "N·s/m", "Kp": "N/m", "Ms": "kg", "Ds": "N·s/m", "rho0": "N/m",
-         "rho1": "N·s/m", "rho2": "N·s/m", "z_ba_forward": "m", "z_ba_backward": "m",
-         "zba_ratio": "-", "pi_weights": "m/V"}
+def law_fittable(law_or_actuator) -> tuple[LawParameter, ...]:
+    """The parameters of a friction law (or of an actuator's) that can be fitted."""
+    return tuple(p for p in held_parameters(_law(law_or_actuator)) if p.fit_kind)
 
 
-def _kind(name: str) -> str:
-    if name == "zba_ratio":
-        return "logit"
-    if name in ("rho1", "rho2"):
-        return "softplus"
-    if name == "pi_weights":
-        return "pi_cumlog"
-    return "log"
+def fittable_names(law_or_actuator) -> tuple[str, ...]:
+    """Every name :meth:`ParameterMap.make` accepts for this law (or actuator)."""
+    return MECHANICS + tuple(p.name for p in law_fittable(law_or_actuator)) + ("pi_weights",)
 
 
-_SOFTPLUS_DEFAULT_SCALE = {"rho1": 1.0, "rho2": 1.0}  # N·s/m
+def scale_invariant_names(law_or_actuator) -> tuple[str, ...]:
+    """Quantities of this law (or actuator) that position data fix only up to the
+    common factor of the masses."""
+    return MECHANICS + tuple(p.name for p in law_fittable(law_or_actuator) if p.mass_scaled)
+
+
+def unit_of(name: str, law_or_actuator) -> str:
+    """Unit of a fittable quantity for reports ('' if unknown)."""
+    if name in _COMMON:
+        return _COMMON[name][2]
+    return next((p.unit for p in law_fittable(law_or_actuator) if p.name == name), "")
+
+
+SCALE_INVARIANT = scale_invariant_names(ElastoPlastic)
+"""Quantities only identifiable up to one common factor from position data (the
+paper's law; :func:`scale_invariant_names` for any)."""
+
+FITTABLE = fittable_names(ElastoPlastic)
+"""Names :meth:`ParameterMap.make` accepts with the paper's law (:func:`fittable_names`
+for any law)."""
+
+UNITS = {name: unit_of(name, ElastoPlastic) for name in FITTABLE}
+
+
+def _law_parameter(name: str, actuator: Actuator) -> LawParameter | None:
+    return next((p for p in law_fittable(actuator) if p.name == name), None)
+
+
+def _getter(name: str, actuator: Actuator) -> Callable[[Actuator], jax.Array]:
+    if name in _COMMON:
+        return _COMMON[name][0]
+    p = _law_parameter(name, actuator)
+    if p is None:
+        raise KeyError(f"{name!r} is not a fittable parameter of an actuator with "
+                       f"{type(actuator.friction).__name__} friction; fittable: "
+                       f"{', '.join(fittable_names(actuator))}")
+    return lambda a, attr=p.attr: getattr(a.friction, attr)
+
+
+def _kind(name: str, actuator: Actuator) -> tuple[str, float | None]:
+    """Transform and θ scale of a built-in quantity."""
+    if name in _COMMON:
+        return _COMMON[name][1], None
+    p = _law_parameter(name, actuator)
+    return p.fit_kind, p.scale
 
 
 @dataclass(frozen=True)
 class ParameterSpec:
-    """How to fit a quantity that is not one of :data:`FITTABLE` (model extensions).
+    """How to fit a quantity that is not a built-in one (model extensions; a friction
+    law's own parameters are built in through its :attr:`parameters`).
 
     ``getter`` selects the leaf in the :class:`Actuator`; ``kind`` is one of ``log``,
     ``softplus`` (non-negative, may start at 0), ``linear`` (signed:
@@ -106,8 +146,7 @@ class FreeParameter:
         elif self.kind == "linear":
             value = start + self.scale * theta
         elif self.kind == "softplus":
-            scale = float(self.start) if float(self.start) > 0 else \
-                (self.scale or _SOFTPLUS_DEFAULT_SCALE[self.name])
+            scale = float(self.start) if float(self.start) > 0 else (self.scale or 1.0)
             theta0 = np.log(np.expm1(float(self.start) / scale)) if float(self.start) > 0 \
                 else -20.0
             value = scale * jax.nn.softplus(theta + theta0)
@@ -157,23 +196,22 @@ class ParameterMap(eqx.Module):
     def make(start: Actuator, names: Sequence[str],
              specs: dict[str, ParameterSpec] | None = None) -> ParameterMap:
         """Free parameters ``names`` (order kept) around the actuator ``start``;
-        ``specs`` describes names that are not in :data:`FITTABLE`."""
+        ``specs`` describes names that are not built in (:func:`fittable_names`)."""
         specs = specs or {}
         free, getters = [], []
         for name in names:
             spec = specs.get(name)
-            getter = spec.getter if spec else _getter(name)
+            getter = spec.getter if spec else _getter(name, start)
             getters.append(getter)
             value = np.asarray(getter(start), dtype=float)
-            kind = spec.kind if spec else _kind(name)
+            kind, scale = (spec.kind, spec.scale) if spec else _kind(name, start)
             if kind == "log" and np.any(value <= 0):
                 raise ValueError(f"{name} must start positive to be fitted, got {value}")
             if kind == "pi_cumlog":
                 value = monotone_pi_start(value)
             if kind == "logit" and not 0 < float(value) < 1:
                 raise ValueError(f"{name} must start inside (0, 1) to be fitted, got {value}")
-            free.append(FreeParameter(name, kind, int(value.size), value,
-                                      spec.scale if spec else None))
+            free.append(FreeParameter(name, kind, int(value.size), value, scale))
         return ParameterMap(start, tuple(free), tuple(getters))
 
     @property

@@ -18,7 +18,7 @@ from ..files import atomic_write_text, check_output_path
 from ..noise import noise_sigma
 from ..params import save_params
 from .figures import mean_step_length, plot_hysteresis_loop, plot_psd_overlay, plot_step_lengths
-from .parameters import UNITS
+from .parameters import unit_of
 
 FIGURES = ("step_psd.png", "fig11_psd.png", "hysteresis_loop.png", "step_length.png")
 
@@ -85,7 +85,7 @@ def fit_summary(result) -> dict:
     unc = result.uncertainty
     for lab, entry in (unc.as_dict() if unc is not None else {}).items():
         base = lab.split("[")[0]
-        params[lab] = {**entry, "unit": UNITS.get(base, "")}
+        params[lab] = {**entry, "unit": unit_of(base, result.actuator)}
     scalars = [i for i, lab in enumerate(unc.labels) if "[" not in lab] if unc else []
     corr = ({"labels": [unc.labels[i] for i in scalars],
              "matrix": [[None if not np.isfinite(unc.correlations[i, j]) else

@@ -10,6 +10,12 @@
    per-period step lengths.
 4. ``joint``: everything at once on every recording.
 
+The friction law's names above are the paper's law's; any registered law takes part
+through its :class:`~stickslip_jax.model.registry.LawParameter` records: ``step``
+says which step fits a parameter (``on_request``: only when asked, ``also_fit``),
+``direction`` marks a per-direction break-away quantity (:func:`dynamics_names`,
+:func:`friction_names`, :func:`breakaway_names`).
+
 Position data determine masses, dampings and stiffnesses only up to one common
 factor, so one of them is held at a known value (by default ``Ms``).
 """
@@ -26,7 +32,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model.actuator import Actuator
-from ..model.friction import AbstractElastoPlastic
 from .dataset import Dataset
 from .initial import (
     measured_step_mode,
@@ -34,7 +39,15 @@ from .initial import (
     scale_pi_quasistatic,
     scale_to_step_mode,
 )
-from .parameters import SCALE_INVARIANT, ParameterMap, ParameterSpec, _getter
+from .parameters import (
+    MECHANICS,
+    ParameterMap,
+    ParameterSpec,
+    _getter,
+    fittable_names,
+    law_fittable,
+    scale_invariant_names,
+)
 from .residuals import (
     DEFAULT_W_PSD,
     TraceResiduals,
@@ -48,6 +61,54 @@ from .uncertainty import Uncertainty, parameter_uncertainty
 
 STEPS = ("dynamics", "hysteresis", "friction", "joint")
 DYNAMICS = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0")
+"""The dynamics step's names with the paper's law (:func:`dynamics_names` for any)."""
+
+
+def _law_step(actuator: Actuator, step: str, also_fit: Sequence[str]) -> list[str]:
+    return [p.name for p in law_fittable(actuator)
+            if p.step == step and (not p.on_request or p.name in also_fit)]
+
+
+def dynamics_names(actuator: Actuator, *, fix=(), also_fit: Sequence[str] = ()) -> list[str]:
+    """What the dynamics step fits: the piezo element's and the slider's masses,
+    dampings and stiffnesses, then the friction law's parameters flagged for this step
+    (on-request ones only when in ``also_fit``), less the fixed ones (``fix``)."""
+    return [n for n in MECHANICS + tuple(_law_step(actuator, "dynamics", also_fit))
+            if n not in fix]
+
+
+def friction_names(actuator: Actuator, *, fix=(), also_fit: Sequence[str] = ()) -> list[str]:
+    """What the friction step fits: the law's parameters flagged for it (on-request ones
+    only when in ``also_fit``), less the fixed ones (``fix``)."""
+    return [n for n in _law_step(actuator, "friction", also_fit) if n not in fix]
+
+
+def breakaway_names(actuator: Actuator, recordings, *, fix=()) -> list[str]:
+    """The law's per-direction quantities of the directions of ``recordings`` (a step
+    response's edge slips, so the dynamics step fits its direction's break-away)."""
+    dirs = {"backward" if r.drive.is_backward else "forward" for r in recordings}
+    return sorted({p.name for p in law_fittable(actuator)
+                   if p.direction in dirs and p.name not in fix})
+
+
+def without_absent_directions(names: Sequence[str], actuator: Actuator,
+                              recordings) -> list[str]:
+    """``names`` less the law's backward-only quantities when no recording is backward
+    (the forward value also serves sines and steps, so it always stays)."""
+    if any(r.drive.is_backward for r in recordings):
+        return list(names)
+    backward = {p.name for p in law_fittable(actuator) if p.direction == "backward"}
+    return [n for n in names if n not in backward]
+
+
+def _requested(actuator: Actuator, also_fit: Sequence[str]) -> list[str]:
+    optional = [p.name for p in law_fittable(actuator) if p.step and p.on_request]
+    unknown = [n for n in also_fit if n not in optional]
+    if unknown:
+        raise ValueError(f"{', '.join(unknown)}: not a parameter that the "
+                         f"{type(actuator.friction).__name__} law fits on request; "
+                         f"those are: {', '.join(optional) or 'none'}")
+    return list(also_fit)
 
 
 @dataclass
@@ -103,7 +164,7 @@ def _is_saw(r):
 
 def _apply_fixed(actuator: Actuator, fixed: dict[str, float]) -> Actuator:
     for name, value in fixed.items():
-        actuator = eqx.tree_at(_getter(name), actuator, jnp.asarray(float(value)))
+        actuator = eqx.tree_at(_getter(name, actuator), actuator, jnp.asarray(float(value)))
     return actuator
 
 
@@ -116,6 +177,7 @@ def identify(
     n_pi: int = 35,
     free_ratio: bool = False,
     fit_rho1: bool = False,
+    also_fit: Sequence[str] = (),
     max_steps: int = 60,
     w_psd: float = DEFAULT_W_PSD,
     extra: dict[str, ParameterSpec] | None = None,
@@ -124,10 +186,12 @@ def identify(
 ) -> Identification:
     """Identify an actuator from recordings (see the module docstring).
 
-    ``init`` the starting actuator (elasto-plastic friction); ``fix`` names held at
-    given SI values; ``steps`` which of ``dynamics, hysteresis, friction, joint`` to
-    run, in that order; ``n_pi`` play operators over the recorded voltage range;
-    ``free_ratio`` also fits ``zba_ratio``; ``fit_rho1`` also fits ``rho1``; ``w_psd``
+    ``init`` the starting actuator (a friction law with parameters flagged for the
+    steps: the paper's elasto-plastic law, or any registered law that flags its own);
+    ``fix`` names held at given SI values; ``steps`` which of ``dynamics, hysteresis,
+    friction, joint`` to run, in that order; ``n_pi`` play operators over the recorded
+    voltage range; ``also_fit`` the law's on-request parameters to fit as well
+    (``free_ratio`` is ``zba_ratio``, ``fit_rho1`` is ``rho1``); ``w_psd``
     weight of the step-response log-PSD term (see :class:`TraceResiduals`);
     ``extra`` quantities of a model extension already in ``init`` (name → spec), fitted
     in every step beside that step's own (the diagnosis re-identifies a baseline with
@@ -141,15 +205,24 @@ def identify(
     unknown = [s for s in steps if s not in STEPS]
     if unknown:
         raise ValueError(f"unknown step(s) {unknown}; choose from {', '.join(STEPS)}")
-    if not isinstance(init.friction, AbstractElastoPlastic):
-        raise ValueError("identification fits the elasto-plastic friction law; the starting "
-                         "parameters use another law")
+    if not any(p.step for p in law_fittable(init)):
+        raise ValueError(f"identification fits a friction law whose parameters name the "
+                         f"steps that fit them; the starting parameters' law "
+                         f"({type(init.friction).__name__}) names none")
+    requested = _requested(init, [*also_fit, *(["zba_ratio"] if free_ratio else []),
+                                  *(["rho1"] if fit_rho1 else [])])
+    cannot = [n for n in fix if n not in fittable_names(init) or n == "pi_weights"]
+    if cannot:
+        raise ValueError(f"cannot hold {', '.join(cannot)}: not a scalar the identification "
+                         f"fits with the {type(init.friction).__name__} law; those are: "
+                         f"{', '.join(fittable_names(init)[:-1])}")
     data = Dataset.from_recordings(recordings)
     notes: list[str] = []
-    if not any(n in fix for n in SCALE_INVARIANT):
+    scale_free = scale_invariant_names(init)
+    if not any(n in fix for n in scale_free):
         fix["Ms"] = float(init.slider.Ms)
         notes.append(
-            f"Position data determine Mp, Dp, Kp, Ms, Ds, rho0, rho1, rho2 only up to one "
+            f"Position data determine {', '.join(scale_free)} only up to one "
             f"common factor. Ms was held at {fix['Ms']:g} kg (the starting value); pass "
             f"--fix Ms=<weighed mass> (or fix another of them) to set the scale.")
     act = _apply_fixed(init, fix)
@@ -172,22 +245,15 @@ def identify(
                          f"{mode[1]:.2f}); stiffnesses scaled by {k:.3g}, dampings by {d:.3g}.")
 
     def free_dynamics():
-        names = [n for n in DYNAMICS if n not in fix]
-        if fit_rho1 and "rho1" not in fix:
-            names.append("rho1")
-        return names
+        return dynamics_names(act, fix=fix, also_fit=requested)
 
     def free_friction():
-        names = [n for n in ("z_ba_forward", "z_ba_backward") if n not in fix]
-        if free_ratio and "zba_ratio" not in fix:
-            names.append("zba_ratio")
-        return names
+        return friction_names(act, fix=fix, also_fit=requested)
 
     def step_breakaway():
         # A fast step edge makes the slider slip, so the breakaway of the step's
         # direction shapes the step response as much as the dynamics do.
-        dirs = {"z_ba_backward" if r.drive.is_backward else "z_ba_forward" for r in step_recs}
-        return [n for n in sorted(dirs) if n not in fix]
+        return breakaway_names(act, step_recs, fix=fix)
 
     plan = {
         "dynamics": (_is_step, free_dynamics() + step_breakaway(), dict(w_psd=w_psd)),
@@ -206,8 +272,7 @@ def identify(
         subset = [r for r in data.recordings if keep(r)]
         # Only directions present in the data can be fitted.
         if name in ("friction", "joint"):
-            dirs = {r.drive.is_backward for r in subset}
-            free = [n for n in free if not (n == "z_ba_backward" and True not in dirs)]
+            free = without_absent_directions(free, act, subset)
         if not subset or not free:
             reports.append(StepReport(name, [], free, None, np.nan, np.nan,
                                       "skipped: no recordings of this kind"

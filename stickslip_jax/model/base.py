@@ -15,13 +15,15 @@ Conventions shared by all components
   many (``n_states``, static) and provides their initial value and rate.
 """
 
-from __future__ import annotations
-
 import abc
+import dataclasses
+from collections.abc import Mapping
 
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
+
+from .registry import LawParameter
 
 
 class DriveContext(eqx.Module):
@@ -95,7 +97,40 @@ class AbstractFriction(eqx.Module):
 
     The friction force acts on the piezo element with a minus sign and on the slider
     with a plus sign (docs/model.md: ``Mp·ẍ1 = ... − Ff``, ``Ms·ẍ2 = Ff + ...``).
+
+    A law is one final class: its physics (the abstract methods below), its
+    parameters as a parameter file holds them (:attr:`parameters`, with units,
+    defaults, bounds and how they are fitted) and :meth:`from_params`; registered
+    with :func:`~stickslip_jax.model.registry.register_friction_law`, parameter
+    files, the identification and the CLI find it by name.
     """
+
+    # Not stringified (no ``from __future__ import annotations`` in this module):
+    # equinox recognises an abstract class variable only from the real annotation.
+    parameters: eqx.AbstractClassVar[tuple[LawParameter, ...]]
+    """The law's parameters in parameter-file order (:class:`LawParameter`)."""
+
+    @classmethod
+    @abc.abstractmethod
+    def from_params(cls, values: Mapping[str, float]) -> "AbstractFriction":
+        """The law from a parameter file's values [SI], by file name: every parameter of
+        :attr:`parameters` the file gives or that has a default, each already within
+        its bounds, aliases resolved (:func:`~stickslip_jax.model.registry.law_values`).
+        Raises :class:`~stickslip_jax.model.registry.ParameterError` for combinations
+        that bounds of single parameters cannot express (LuGre's ``F_s ≥ F_c``)."""
+
+    def to_params(self) -> dict[str, float]:
+        """This law's entries of a parameter file [SI], in :attr:`parameters` order:
+        each parameter whose field this class has (an alias takes the value of its
+        first target). The inverse of :meth:`from_params`."""
+        fields = {f.name for f in dataclasses.fields(self)}
+        by_name = {p.name: p for p in self.parameters}
+        out = {}
+        for p in self.parameters:
+            attr = by_name[p.alias_for[0]].attr if p.alias_for else p.attr
+            if attr in fields:
+                out[p.name] = float(getattr(self, attr))
+        return out
 
     @abc.abstractmethod
     def z_rate(self, z, xdot, drive: DriveContext):
@@ -116,6 +151,11 @@ class AbstractFriction(eqx.Module):
     @abc.abstractmethod
     def stiffness(self, drive: DriveContext):
         """Small-motion contact stiffness dFf/dz [N/m] (for linearisation)."""
+
+    @abc.abstractmethod
+    def coulomb_force(self, drive: DriveContext):
+        """Kinetic (Coulomb) friction level [N]: the most a steadily sliding contact
+        carries, the ceiling of the force a blocked runner generates."""
 
     @abc.abstractmethod
     def strain_switches(self, drive: DriveContext) -> tuple:

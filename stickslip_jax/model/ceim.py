@@ -30,13 +30,18 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .base import AbstractFriction, DriveContext
-from .friction import transition_alpha
+from .friction import DEFAULT_ZBA_RATIO, transition_alpha
+from .registry import LawParameter, ParameterError, register_friction_law
 
 
 def _f(x):
     return jnp.asarray(x, dtype=float)
 
 
+_NON_NEGATIVE = {"lower": 0.0}
+
+
+@register_friction_law("ceim")
 class CEIMElastoPlastic(AbstractFriction):
     """Preload-dependent elasto-plastic contact (see the module docstring).
 
@@ -50,7 +55,31 @@ class CEIMElastoPlastic(AbstractFriction):
     f_ba: z_ba/|z_ss| in (0, 1] [-] (eq. 15).
     mu: friction coefficient, Coulomb level μ·F [-].
     sigma1: micro-damping [N·s/m] (eq. 18).
+
+    In a parameter file the preload is ``N`` (which also sets the piezo element's
+    preload term); the identification does not fit this law.
     """
+
+    parameters = (
+        LawParameter("N", "N", "normal preload on the contact", required=True,
+                     attribute="preload", lower=0.0, lower_open=True,
+                     with_normal_force=True),
+        LawParameter("zba_slope", "m/N", "CEIM: d z_ba / d preload = a·E* + b (Nguyen eq. 14)",
+                     required=True, **_NON_NEGATIVE),
+        LawParameter("zba_0", "m", "CEIM: z_ba at zero preload = c·E* + d", required=True,
+                     **_NON_NEGATIVE),
+        LawParameter("sigma0_slope", "N/m per N",
+                     "CEIM: d sigma0 / d preload = a_s·E* + b_s (eq. 19)", required=True,
+                     **_NON_NEGATIVE, mass_scaled=True, stiffness=True),
+        LawParameter("sigma0_0", "N/m", "CEIM: sigma0 at zero preload = c_s·E* + d_s",
+                     required=True, **_NON_NEGATIVE, mass_scaled=True, stiffness=True),
+        LawParameter("mu", "-", "CEIM: friction coefficient, Coulomb level mu·N",
+                     required=True, **_NON_NEGATIVE, mass_scaled=True),
+        LawParameter("f_ba", "-", "CEIM: z_ba/|z_ss| (eq. 15)",
+                     default=DEFAULT_ZBA_RATIO, lower=0.0, lower_open=True, upper=1.0),
+        LawParameter("sigma1", "N·s/m", "CEIM: contact micro-damping (eq. 18)", default=0.0,
+                     **_NON_NEGATIVE, mass_scaled=True, with_normal_force=True),
+    )
 
     preload: Float[Array, ""]
     zba_slope: Float[Array, ""]
@@ -61,8 +90,8 @@ class CEIMElastoPlastic(AbstractFriction):
     mu: Float[Array, ""]
     sigma1: Float[Array, ""]
 
-    def __init__(self, preload, *, zba_slope, zba_0, sigma0_slope, sigma0_0, f_ba=0.667,
-                 mu, sigma1=0.0):
+    def __init__(self, preload, *, zba_slope, zba_0, sigma0_slope, sigma0_0,
+                 f_ba=DEFAULT_ZBA_RATIO, mu, sigma1=0.0):
         self.preload = _f(preload)
         self.zba_slope = _f(zba_slope)
         self.zba_0 = _f(zba_0)
@@ -73,8 +102,8 @@ class CEIMElastoPlastic(AbstractFriction):
         self.sigma1 = _f(sigma1)
 
     @staticmethod
-    def from_material(preload, *, a, b, c, d, a_s, b_s, c_s, d_s, o, p, E, f_ba=0.667, mu,
-                      sigma1=0.0) -> CEIMElastoPlastic:
+    def from_material(preload, *, a, b, c, d, a_s, b_s, c_s, d_s, o, p, E,
+                      f_ba=DEFAULT_ZBA_RATIO, mu, sigma1=0.0) -> CEIMElastoPlastic:
         """From the paper's empirical coefficients: ``E* = o·ln(E) + p`` (eq. 16)."""
         e_star = o * jnp.log(_f(E)) + p
         return CEIMElastoPlastic(preload, zba_slope=a * e_star + b, zba_0=c * e_star + d,
@@ -82,7 +111,7 @@ class CEIMElastoPlastic(AbstractFriction):
                                  f_ba=f_ba, mu=mu, sigma1=sigma1)
 
     @staticmethod
-    def matching(rho0, z_ba, *, zba_ratio=0.667, preload=1.0, zba_share=0.5,
+    def matching(rho0, z_ba, *, zba_ratio=DEFAULT_ZBA_RATIO, preload=1.0, zba_share=0.5,
                  sigma0_share=0.5) -> CEIMElastoPlastic:
         """A CEIM contact equal to the elasto-plastic law (ρ0, z_ba, ratio) at ``preload``.
 
@@ -95,6 +124,38 @@ class CEIMElastoPlastic(AbstractFriction):
             preload, zba_slope=zba_share * z_ba / preload, zba_0=(1 - zba_share) * z_ba,
             sigma0_slope=sigma0_share * rho0 / preload, sigma0_0=(1 - sigma0_share) * rho0,
             f_ba=zba_ratio, mu=rho0 * z_ba / zba_ratio / preload)
+
+    @staticmethod
+    def matching_law(law: AbstractFriction, *, preload=1.0, zba_share=0.5,
+                     sigma0_share=0.5) -> CEIMElastoPlastic:
+        """A CEIM contact equal to another friction law at ``preload`` [N] in what CEIM
+        has: its small-motion stiffness, its break-away strain (the first of its strain
+        switches) and its Coulomb level, for a forward drive (:meth:`matching`). For the
+        elasto-plastic law that is the law itself (to rounding). ``ValueError`` for a
+        law without an elastic range (no strain switch: LuGre)."""
+        drive = DriveContext.make()
+        switches = law.strain_switches(drive)
+        if not switches:
+            raise ValueError(f"a {type(law).__name__} contact has no break-away strain (no "
+                             f"elastic range) for a CEIM contact to match")
+        k, z_ba, fc = law.stiffness(drive), switches[0], law.coulomb_force(drive)
+        ratio = float(k * z_ba / fc)
+        if not 0.0 < ratio <= 1.0:
+            raise ValueError(f"the {type(law).__name__} contact's break-away force "
+                             f"stiffness·z_ba is {ratio:g} of its Coulomb level; a CEIM "
+                             f"contact needs (0, 1]")
+        return CEIMElastoPlastic.matching(k, z_ba, zba_ratio=ratio, preload=preload,
+                                          zba_share=zba_share, sigma0_share=sigma0_share)
+
+    @classmethod
+    def from_params(cls, values):
+        preload = values["N"]
+        if values["mu"] <= 0 or values["zba_slope"] * preload + values["zba_0"] <= 0 or \
+                values["sigma0_slope"] * preload + values["sigma0_0"] <= 0:
+            raise ParameterError("CEIM needs mu > 0 and a positive z_ba and sigma0 at the "
+                                 "preload N.",
+                                 fix="check zba_slope/zba_0, sigma0_slope/sigma0_0 and N.")
+        return cls(preload, **{k: v for k, v in values.items() if k != "N"})
 
     def with_preload(self, preload) -> CEIMElastoPlastic:
         """The same material under another normal force [N]."""

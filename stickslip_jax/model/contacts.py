@@ -29,8 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .base import AbstractExtension, AbstractFriction, CoreState, DriveContext, ExtensionTerms
-from .ceim import CEIMElastoPlastic
-from .friction import AbstractElastoPlastic
+from .registry import held_parameters
 
 
 class ExtraContacts(AbstractExtension):
@@ -88,22 +87,24 @@ def stack_contacts(laws) -> AbstractFriction:
 
 
 def split_contact(friction: AbstractFriction, share: float) -> AbstractFriction:
-    """The contact that carries ``share`` of the lumped contact's normal force.
+    """The contact that carries ``share`` of the lumped contact's normal force: the
+    law's parameters flagged ``with_normal_force``
+    (:class:`~stickslip_jax.model.registry.LawParameter`) times ``share``, the others
+    unchanged.
 
     Elasto-plastic: stiffnesses and dampings (ρ0, ρ1, ρ2) scale with the share, the
     break-away strains do not (so the Coulomb level scales with it too). CEIM: the
-    same material under ``share``·preload, with its σ1 scaled.
+    same material under ``share``·preload, with its σ1 scaled. A law that flags none
+    cannot be split (``TypeError``).
     """
     share = float(share)
-    if isinstance(friction, CEIMElastoPlastic):
-        f = friction.with_preload(friction.preload * share)
-        return eqx.tree_at(lambda c: c.sigma1, f, friction.sigma1 * share)
-    if isinstance(friction, AbstractElastoPlastic):
-        return eqx.tree_at(lambda c: (c.rho0, c.rho1, c.rho2), friction,
-                           (friction.rho0 * share, friction.rho1 * share,
-                            friction.rho2 * share))
-    raise TypeError(f"cannot split a {type(friction).__name__} contact; use an elasto-plastic "
-                    f"or CEIM law")
+    attrs = tuple(p.attr for p in held_parameters(friction) if p.with_normal_force)
+    if not attrs:
+        raise TypeError(f"cannot split a {type(friction).__name__} contact: its law flags "
+                        f"no parameter as proportional to the normal force "
+                        f"(LawParameter.with_normal_force)")
+    return eqx.tree_at(lambda c: tuple(getattr(c, a) for a in attrs), friction,
+                       tuple(getattr(friction, a) * share for a in attrs))
 
 
 def multi_contact(actuator, shares):

@@ -28,10 +28,43 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .base import AbstractFriction, DriveContext
+from .registry import LawParameter, ParameterError, register_friction_law
+
+DEFAULT_ZBA_RATIO = 0.667
+"""The paper's ``z_ba/|z_ss|`` [-] (Lu et al. 2015 §IV-B.3): the default of every
+elasto-plastic law here (``zba_ratio``, CEIM's ``f_ba``)."""
 
 
 def _f(x):
     return jnp.asarray(x, dtype=float)
+
+
+_POSITIVE = {"lower": 0.0, "lower_open": True}
+_NON_NEGATIVE = {"lower": 0.0}
+
+ELASTOPLASTIC_PARAMETERS = (
+    LawParameter("rho0", "N/m", "contact stiffness", required=True, **_POSITIVE,
+                 step="dynamics", mass_scaled=True, stiffness=True, with_normal_force=True),
+    LawParameter("rho1", "N·s/m", "contact micro-damping", default=0.0, **_NON_NEGATIVE,
+                 step="dynamics", on_request=True, mass_scaled=True, with_normal_force=True),
+    LawParameter("rho2", "N·s/m", "viscous friction", default=0.0, **_NON_NEGATIVE,
+                 mass_scaled=True, with_normal_force=True),
+    LawParameter("z_ba", "m", "break-away displacement, both directions",
+                 alias_for=("z_ba_forward", "z_ba_backward"), **_POSITIVE),
+    LawParameter("z_ba_forward", "m", "break-away displacement, forward drive (and sine, step)",
+                 required=True, **_POSITIVE, step="friction", direction="forward"),
+    LawParameter("z_ba_backward", "m", "break-away displacement, backward drive",
+                 required=True, **_POSITIVE, step="friction", direction="backward"),
+    LawParameter("zba_ratio", "-", "z_ba/|z_ss|", default=DEFAULT_ZBA_RATIO,
+                 lower=0.0, lower_open=True, upper=1.0, step="friction", on_request=True),
+    LawParameter("stribeck_ratio", "-", "f_max/f_c (Stribeck steady state when > 1)",
+                 default=1.0, lower=1.0),
+    LawParameter("v_s", "m/s", "Stribeck velocity (needed when stribeck_ratio > 1)",
+                 **_POSITIVE),
+)
+"""The ``"elastoplastic"`` file form, shared by every law of the family: the paper's
+law, its Stribeck generalisation (``stribeck_ratio`` > 1 selects it) and the variants
+that read z_ba elsewhere (they are written as the paper's law)."""
 
 
 def transition_alpha(abs_z, z_ba, zss_mag):
@@ -68,8 +101,10 @@ class AbstractElastoPlastic(AbstractFriction):
     rho2: viscous friction coefficient [N·s/m] (paper: neglected).
     z_ba_forward, z_ba_backward: break-away displacement for forward / backward drive
         [m]; recordings without a direction (step, sine) use the forward value.
-    zba_ratio: ``z_ba/|z_ss|`` in (0, 1] [-] (paper: 0.667).
+    zba_ratio: ``z_ba/|z_ss|`` in (0, 1] [-] (paper: :data:`DEFAULT_ZBA_RATIO`).
     """
+
+    parameters = ELASTOPLASTIC_PARAMETERS
 
     rho0: eqx.AbstractVar[Float[Array, ""]]
     rho1: eqx.AbstractVar[Float[Array, ""]]
@@ -77,6 +112,22 @@ class AbstractElastoPlastic(AbstractFriction):
     z_ba_forward: eqx.AbstractVar[Float[Array, ""]]
     z_ba_backward: eqx.AbstractVar[Float[Array, ""]]
     zba_ratio: eqx.AbstractVar[Float[Array, ""]]
+
+    @classmethod
+    def from_params(cls, values):
+        """The ``"elastoplastic"`` file form: the paper's law, or
+        :class:`StribeckElastoPlastic` when ``stribeck_ratio`` > 1 (then ``v_s`` is
+        needed). Every class of the family reads the same form into those two."""
+        rest = {"zba_ratio": values["zba_ratio"], "rho1": values["rho1"],
+                "rho2": values["rho2"]}
+        args = (values["rho0"], values["z_ba_forward"], values["z_ba_backward"])
+        if values["stribeck_ratio"] > 1.0:
+            if "v_s" not in values:
+                raise ParameterError("stribeck_ratio > 1 needs v_s.",
+                                     fix="add the Stribeck velocity v_s [m/s].")
+            return StribeckElastoPlastic(*args, stribeck_ratio=values["stribeck_ratio"],
+                                         v_s=values["v_s"], **rest)
+        return ElastoPlastic(*args, **rest)
 
     def z_ba(self, drive: DriveContext):
         """Break-away displacement for the drive's direction [m]."""
@@ -121,6 +172,7 @@ class AbstractElastoPlastic(AbstractFriction):
         return self.rho0 * self.z_ba(drive) / self.zba_ratio
 
 
+@register_friction_law("elastoplastic")
 class ElastoPlastic(AbstractElastoPlastic):
     """The paper's law (Lu eq. 16): constant ``f_ss = f_c``, so ``|z_ss| = z_ba/ratio``."""
 
@@ -131,8 +183,8 @@ class ElastoPlastic(AbstractElastoPlastic):
     z_ba_backward: Float[Array, ""]
     zba_ratio: Float[Array, ""]
 
-    def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, zba_ratio=0.667, rho1=0.0,
-                 rho2=0.0):
+    def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, zba_ratio=DEFAULT_ZBA_RATIO,
+                 rho1=0.0, rho2=0.0):
         self.rho0 = _f(rho0)
         self.rho1 = _f(rho1)
         self.rho2 = _f(rho2)
@@ -163,7 +215,7 @@ class StribeckElastoPlastic(AbstractElastoPlastic):
     v_s: Float[Array, ""]
 
     def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, stribeck_ratio, v_s,
-                 zba_ratio=0.667, rho1=0.0, rho2=0.0):
+                 zba_ratio=DEFAULT_ZBA_RATIO, rho1=0.0, rho2=0.0):
         self.rho0 = _f(rho0)
         self.rho1 = _f(rho1)
         self.rho2 = _f(rho2)
@@ -178,6 +230,7 @@ class StribeckElastoPlastic(AbstractElastoPlastic):
         return base * (1.0 + (self.stribeck_ratio - 1.0) / (1.0 + (xdot / self.v_s) ** 2))
 
 
+@register_friction_law("lugre")
 class LuGre(AbstractFriction):
     """LuGre friction (Canudas de Wit 1995; Nguyen eq. 8-10).
 
@@ -186,8 +239,23 @@ class LuGre(AbstractFriction):
     saturation) and it has no pure-elastic region, hence no 0-amplitude effect.
 
     Attributes: sigma0 [N/m], sigma1 [N·s/m], sigma2 [N·s/m], F_c Coulomb level [N],
-    F_s static level [N], v_s Stribeck velocity [m/s].
+    F_s static level [N], v_s Stribeck velocity [m/s]. The identification does not fit
+    it (no parameter is flagged for its steps); a file names every parameter.
     """
+
+    parameters = (
+        LawParameter("sigma0", "N/m", "LuGre bristle stiffness", required=True, **_POSITIVE,
+                     mass_scaled=True, stiffness=True),
+        LawParameter("sigma1", "N·s/m", "LuGre bristle damping", required=True,
+                     **_NON_NEGATIVE, mass_scaled=True),
+        LawParameter("sigma2", "N·s/m", "LuGre viscous friction", required=True,
+                     **_NON_NEGATIVE, mass_scaled=True),
+        LawParameter("F_c", "N", "LuGre Coulomb level", required=True, **_POSITIVE,
+                     mass_scaled=True),
+        LawParameter("F_s", "N", "LuGre static level (≥ F_c)", required=True, **_POSITIVE,
+                     mass_scaled=True),
+        LawParameter("v_s", "m/s", "Stribeck velocity", required=True, **_POSITIVE),
+    )
 
     sigma0: Float[Array, ""]
     sigma1: Float[Array, ""]
@@ -203,6 +271,13 @@ class LuGre(AbstractFriction):
         self.F_c = _f(F_c)
         self.F_s = _f(F_s)
         self.v_s = _f(v_s)
+
+    @classmethod
+    def from_params(cls, values):
+        if values["F_s"] < values["F_c"]:
+            raise ParameterError("LuGre needs F_s ≥ F_c.",
+                                 fix="the static level is at least the Coulomb level.")
+        return cls(**values)
 
     def _g(self, xdot):
         return self.F_c + (self.F_s - self.F_c) * jnp.exp(-((xdot / self.v_s) ** 2))
@@ -221,6 +296,9 @@ class LuGre(AbstractFriction):
 
     def stiffness(self, drive):
         return self.sigma0
+
+    def coulomb_force(self, drive):
+        return self.F_c
 
     def strain_switches(self, drive):
         return ()
@@ -259,8 +337,8 @@ class ConstantZssElastoPlastic(AbstractElastoPlastic):
     z_ba_backward: Float[Array, ""]
     zba_ratio: Float[Array, ""]
 
-    def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, zba_ratio=0.667, rho1=0.0,
-                 rho2=0.0):
+    def __init__(self, rho0, z_ba_forward, z_ba_backward=None, *, zba_ratio=DEFAULT_ZBA_RATIO,
+                 rho1=0.0, rho2=0.0):
         self.rho0 = _f(rho0)
         self.rho1 = _f(rho1)
         self.rho2 = _f(rho2)

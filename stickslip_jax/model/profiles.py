@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from .actuator import Actuator
-from .friction import ElastoPlastic
+from .friction import DEFAULT_ZBA_RATIO, ElastoPlastic
 from .hysteresis import PrandtlIshlinskii, default_thresholds
 from .piezo import PiezoElement
 from .slider import Slider
@@ -59,7 +59,8 @@ def lu2015_slc1720() -> Actuator:
         piezo=PiezoElement(t["Mp"], t["Dp"], t["Kp"], Kact2=0.0, N=0.0),
         hysteresis=lu2015_pi(),
         slider=Slider(t["Ms"], t["Ds"]),
-        friction=ElastoPlastic(t["rho0"], 0.40e-6, 0.45e-6, zba_ratio=0.667, rho1=t["rho1"]),
+        friction=ElastoPlastic(t["rho0"], 0.40e-6, 0.45e-6, zba_ratio=DEFAULT_ZBA_RATIO,
+                               rho1=t["rho1"]),
     )
 
 

@@ -195,8 +195,7 @@ def force_vs_amplitude(actuator: Actuator, amplitudes, frequency_Hz: float, *,
 
     history = k_load * (period_means(loaded) - period_means(_elastic_twin(loaded)))
     force = history[:, -average:].mean(axis=1)
-    coulomb = getattr(actuator.friction, "coulomb_force", None)
-    fc = float(coulomb(DriveContext.make(backward=backward))) if coulomb else float("nan")
+    fc = float(actuator.friction.coulomb_force(DriveContext.make(backward=backward)))
     return ForceCurve(amplitudes, force, history, float(k_load), float(frequency_Hz), fc)
 
 
