@@ -36,6 +36,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_batching import custom_vmap
 
 from .model.actuator import N_CORE, Actuator
 from .model.base import DriveContext
@@ -288,6 +289,32 @@ def _hermite_root(s0, d0, s1, d1, iterations: int = 6):
     return jax.lax.fori_loop(0, iterations, newton, theta)
 
 
+@custom_vmap
+def _any_row(need):
+    """``need`` [bool] as it is; under ``vmap``, whether any row needs it (unbatched).
+
+    A ``cond`` whose predicate is batched becomes a select that computes both branches
+    for every row, every time. With this predicate the ``cond`` stays a branch, taken
+    when some row of the batch needs it; each row then keeps the branch's result only
+    where it needs it itself (``jnp.where``), so every row gets exactly what it would get
+    alone, and a batch pays a branch only where one of its rows does.
+    """
+    return need
+
+
+@_any_row.def_vmap
+def _any_row_batched(axis_size, in_batched, need):
+    (batched,) = in_batched
+    return (jnp.any(need) if batched else need), False
+
+
+def _branch(need, branch, otherwise):
+    """``branch(None)`` where ``need``, else ``otherwise`` (pytrees of equal structure),
+    as a ``cond`` that stays a branch under ``vmap`` (see :func:`_any_row`)."""
+    taken = jax.lax.cond(_any_row(need), branch, lambda _: otherwise, None)
+    return jax.tree.map(lambda t, o: jnp.where(need, t, o), taken, otherwise)
+
+
 def _relative_velocity(y):
     return y[1] - y[3]
 
@@ -389,7 +416,7 @@ def _crossed(actuator, drive, y, y1, k1, k_end):
     def matters(_):
         return changed & (actuator.switch_active(y, drive) | actuator.switch_active(y1, drive))
 
-    return jax.lax.cond(jnp.any(changed), matters, lambda _: jnp.zeros_like(changed), None)
+    return _branch(jnp.any(changed), matters, jnp.zeros_like(changed))
 
 
 def _located(actuator, drive, solver, field_at, y, y1, k1, k_end, tau0, dtau, h):
@@ -423,7 +450,7 @@ def _located(actuator, drive, solver, field_at, y, y1, k1, k_end, tau0, dtau, h)
         y_stop, k_stop, _ = jax.lax.fori_loop(0, 2, piece, (y, k1, t0))
         return y_stop, k_stop
 
-    return jax.lax.cond(jnp.any(crossed), split, lambda _: (y1, k_end), None)
+    return _branch(jnp.any(crossed), split, (y1, k_end))
 
 
 def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan):
@@ -435,8 +462,8 @@ def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan):
     With refinement (``plan.refine = r > 1``), where their sum exceeds
     ``plan.tolerance``, passes 1..r take the interval again as r parts of
     ``plan.substeps`` sub-steps each; otherwise they are skipped (a ``cond``: only those
-    intervals pay; under ``vmap`` it becomes a select and every interval pays every
-    pass). All passes run the same integrator, so it is compiled once.
+    intervals pay; under ``vmap`` a batch pays a pass where one of its rows needs it,
+    :func:`_branch`). All passes run the same integrator, so it is compiled once.
     """
     run = _interval_integrator(actuator, dt, drive, plan)
     r = plan.refine
@@ -464,7 +491,7 @@ def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan):
                             jnp.where(first, e, est), jnp.where(first, y, y_out),
                             jnp.where(first, memory, mem_out))
 
-                return jax.lax.cond(first | (est > plan.tolerance), go, lambda _: state, None)
+                return _branch(first | (est > plan.tolerance), go, state)
 
             zero = jnp.zeros_like(y[0])
             y_c, mem_c, est, y_r, mem_r = jax.lax.fori_loop(
