@@ -23,6 +23,16 @@ def subplots(*args, figsize=None, **kwargs):
     return fig, fig.subplots(*args, **kwargs)
 
 
+def legend_on_labelled(axes, **kwargs):
+    """A legend on the first of ``axes`` (tried in reverse order, so the last panel is
+    preferred) that holds labelled lines; none when no panel does (matplotlib would warn
+    "No artists with labels found")."""
+    for ax in reversed(list(axes)):
+        if ax.get_legend_handles_labels()[0]:
+            return ax.legend(**kwargs)
+    return None
+
+
 def colormap(name: str):
     """A named matplotlib colormap."""
     import matplotlib

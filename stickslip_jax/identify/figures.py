@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plots import colormap, save_figure, subplots
+from ..plots import colormap, legend_on_labelled, save_figure, subplots
 from .dataset import period_ends, step_lengths
 from .initial import stroke_along
 from .residuals import _psd
@@ -130,6 +130,6 @@ def plot_step_lengths(recs, q_sims, *, path: str | Path | None = None):
         ax.grid(alpha=0.25)
     axes[0].set_ylabel("step per period [nm] (+x)")
     axes[1].set_ylabel("step per period [nm] (negative: towards −x)")
-    axes[1].legend(fontsize=7, ncol=1)
+    legend_on_labelled(axes, fontsize=7, ncol=1)   # a forward-only set has no backward panel
     fig.tight_layout()
     return _finish(fig, path)

@@ -369,7 +369,7 @@ def plot_zba_surface(points: ZbaPoints, fit: SurfaceFit, path=None):
     the surface (lines), drawn only where it is supported: at each frequency, over the
     amplitudes inside the convex hull of that direction's determined points
     (:func:`support_interval`)."""
-    from ..plots import colormap, subplots
+    from ..plots import colormap, legend_on_labelled, subplots
 
     fig, axes = subplots(1, 2, figsize=(10, 4))
     freqs = np.unique(points.frequency_Hz)
@@ -399,7 +399,7 @@ def plot_zba_surface(points: ZbaPoints, fit: SurfaceFit, path=None):
         ax.set_xlabel("amplitude [V]")
         ax.set_ylabel(f"z_ba, {name} drive [µm]")
         ax.grid(alpha=0.25)
-    axes[1].legend(fontsize=7)
+    legend_on_labelled(axes, fontsize=7)
     fig.suptitle("z_ba per recording (markers, ±2 SE; x: not determined) and the surface "
                  "(lines, only within the points' convex hull)", fontsize=10)
     fig.tight_layout()
