@@ -128,7 +128,11 @@ def simulate_command(
                 meas = rec.position_m
             title = f"{rec.name}: {rec.regime}"
             make_folders(plot)
-            plot_trace(rec.time_s, rec.voltage_V, q, q_meas_m=meas, title=title, path=plot)
+            # The file's own output, whatever made it (a sensor, or another simulator for
+            # the conformance traces): "recorded", not "measured".
+            plot_trace(rec.time_s, rec.voltage_V, q, q_meas_m=meas, title=title, path=plot,
+                       meas_label=f"recorded in {voltage_from.name}" if meas is not None
+                       else "measured")
             typer.echo(f"wrote {plot}")
 
 
