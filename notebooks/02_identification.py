@@ -170,8 +170,9 @@ cols = 4
 rows = -(-n // cols)
 fig, axes = plt.subplots(rows, cols, figsize=(14, 2.4 * rows))
 for ax, rec, q in zip(axes.flat, recordings, q_sim, strict=False):
-    ax.plot(rec.time_s * 1e3, rec.position_m * 1e6, lw=0.8, label="measured")
-    ax.plot(rec.time_s * 1e3, q * 1e6, "--", lw=0.8, label="fitted")
+    # Measured beneath, wide and light; fitted on top, thin and dashed: both visible.
+    ax.plot(rec.time_s * 1e3, rec.position_m * 1e6, color="0.6", lw=2.5, label="measured")
+    ax.plot(rec.time_s * 1e3, q * 1e6, "--", color="tab:blue", lw=0.8, label="fitted")
     ax.set_title(rec.name, fontsize=9)
 for ax in axes.flat[n:]:
     ax.axis("off")
