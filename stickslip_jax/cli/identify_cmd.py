@@ -24,7 +24,12 @@ EPILOG = """Examples:
   stickslip identify runs/ --out out/id --steps dynamics,hysteresis --force
 
 Exit codes: 0 converged; 2 bad input; 3 a fit did not converge (the parameters are
-then written as params.unconverged.json, never as params.json).
+then written as params.unconverged.json, never as params.json), or the recordings
+cannot determine a parameter of the steps asked for: nothing is fitted and nothing
+written, and the message names the parameters, why, and the recording that would
+determine them (a step response for Mp, Dp, Kp, Ds, rho0; a sine for the PI weights;
+a sawtooth that steps, per direction, for z_ba). --steps limits the check to the
+steps asked for: sine recordings alone can still be fitted with --steps hysteresis.
 """
 
 
@@ -114,19 +119,24 @@ def identify_command(
                               echo=lambda s: typer.echo(s, err=True))
         except ValueError as err:
             raise fail(str(err)) from None
+        if result.undetermined is not None and result.undetermined.blocking:
+            raise fail(result.undetermined.statement(), EXIT_FAILED)
         written = write_identification(result, out, force=force, figures=not no_figures,
                                        inputs=[r.source for r in recordings if r.source])
         summary = fit_summary(result)
     for note in result.notes:
         typer.echo(f"note: {note}")
     o = summary["overall"]
+    ratio = o["nrmse_over_floor"]  # None when the data show no noise at all
     typer.echo(f"overall NRMSE {100 * o['nrmse']:.4f} % (noise floor "
-               f"{100 * o['noise_floor_nrmse']:.4f} %, ratio {o['nrmse_over_floor']:.3f})")
+               f"{100 * o['noise_floor_nrmse']:.4f} %, ratio "
+               f"{'n/a' if ratio is None else format(ratio, '.3f')})")
     for label, p in summary["parameters"].items():
         if "[" in label:
             continue
         se = f"± {p['std_error']:.3g}" if p["std_error"] is not None else "± ?"
-        flag = "" if p["determined"] else "   (not determined by these data)"
+        flag = ("" if p["determined"] else "   (not determined by these data)"
+                if p["fitted"] else "   (not fitted: held at its start value)")
         typer.echo(f"  {label:14s} {p['value']:.6g} {se} {p['unit']}{flag}")
     typer.echo(f"wrote {', '.join(str(p) for p in written.values() if p.suffix == '.json')} "
                f"and {len(written) - 2} figure(s)")

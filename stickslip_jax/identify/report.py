@@ -83,9 +83,17 @@ def fit_summary(result) -> dict:
         }
     params = {}
     unc = result.uncertainty
+    fitted = {n for s in result.steps if s.result is not None for n in s.free}
     for lab, entry in (unc.as_dict() if unc is not None else {}).items():
         base = lab.split("[")[0]
-        params[lab] = {**entry, "unit": unit_of(base, result.actuator)}
+        se = entry["std_error"]
+        # Determined only if a step fitted it and its standard error is finite and not
+        # 0 (an SE of 0 comes from a Jacobian with fewer rows than columns, not from
+        # perfect data).
+        determined = bool(entry["determined"] and base in fitted and se is not None
+                          and se > 0)
+        params[lab] = {**entry, "determined": determined, "fitted": base in fitted,
+                       "unit": unit_of(base, result.actuator)}
     scalars = [i for i, lab in enumerate(unc.labels) if "[" not in lab] if unc else []
     corr = ({"labels": [unc.labels[i] for i in scalars],
              "matrix": [[None if not np.isfinite(unc.correlations[i, j]) else
@@ -122,8 +130,12 @@ def write_identification(result, out_dir: str | Path, *, force: bool = False,
                          inputs=(), figures: bool = True) -> dict[str, Path]:
     """Write ``result`` (an :class:`Identification`) into ``out_dir``; returns the paths.
 
-    ``inputs`` are files that must never be written over.
+    ``inputs`` are files that must never be written over. A result whose data could
+    not determine its steps (nothing fitted) is refused with the reason (ValueError).
     """
+    blocked = getattr(result, "undetermined", None)
+    if blocked is not None and blocked.blocking:
+        raise ValueError(blocked.statement())
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = {}

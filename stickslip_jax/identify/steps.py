@@ -33,6 +33,7 @@ import numpy as np
 
 from ..model.actuator import Actuator
 from .dataset import Dataset
+from .informative import Assessment, assess
 from .initial import (
     measured_step_mode,
     pi_over_range,
@@ -143,11 +144,17 @@ class Identification:
     numerical_error_m: np.ndarray | None = None
     """Per recording: how far the simulator's trace at the fit is from converged, RMS,
     offset removed [m] (step doubling; :func:`~.residuals.numerical_error`)."""
+    undetermined: Assessment | None = None
+    """Set when the recordings cannot determine a parameter of the steps asked for
+    (:func:`~.informative.assess`, judged before fitting): then nothing was fitted.
+    A direction not recorded at all is only a note; its break-away is not fitted."""
 
     @property
     def converged(self) -> bool:
-        """True when every step that ran converged."""
-        return all(s.converged for s in self.steps if s.result is not None)
+        """True when every step that ran converged and the data determine every
+        parameter of the steps asked for (never on untouched start values)."""
+        blocked = self.undetermined is not None and bool(self.undetermined.blocking)
+        return not blocked and all(s.converged for s in self.steps if s.result is not None)
 
 
 def _is_step(r):
@@ -226,6 +233,19 @@ def identify(
             f"common factor. Ms was held at {fix['Ms']:g} kg (the starting value); pass "
             f"--fix Ms=<weighed mass> (or fix another of them) to set the scale.")
     act = _apply_fixed(init, fix)
+    # Before any fitting: what the data cannot determine is neither fitted nor reported.
+    informative = assess(data.recordings, init, steps=steps, fix=fix, also_fit=requested,
+                         n_pi=n_pi)
+    notes += [g.line() for g in informative.groups if not g.blocking]
+    if informative.blocking:
+        say(f"[data] undetermined by these recordings: "
+            f"{', '.join(n for g in informative.blocking for n in g.names)}; nothing fitted")
+        return Identification(act, [StepReport(s, [], [], None, np.nan, np.nan,
+                                               "skipped: the data cannot determine it")
+                                    for s in STEPS if s in steps],
+                              data, np.full(len(data), np.nan), None,
+                              notes + [informative.statement()], None, fix,
+                              undetermined=informative)
     act = pi_over_range(act, data.recordings, n_pi)
 
     step_recs = [r for r in data.recordings if _is_step(r)]
