@@ -18,6 +18,7 @@ import pytest
 
 import stickslip_jax as ss
 from stickslip_jax.diagnose import diagnose, with_effect
+from stickslip_jax.diagnose.budget import DEFAULT_WORK_BUDGET
 from stickslip_jax.synthetic import paper_protocol, simulate_set
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -139,20 +140,41 @@ def test_a_polish_or_refit_short_of_its_optimum_is_said(base, tmp_path):
     assert "## Notes" in md and "Baseline polish: not converged" in md
 
 
-def test_work_past_the_time_budget_is_skipped_and_said(base):
-    """The first refits always run; a fallback refit that would end past the budget is
-    skipped, with a note on the entry and in the diagnosis."""
+def _budget_run(base, work_budget):
     recs = reduced_set(base, "sensor_delay")[2:7]
-    d = diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(),
-                 candidates=["creep", "external_load", "viscous_friction"], max_rounds=1,
-                 top=1, max_steps=1, fallback=False, time_budget_s=1e-3)
+    return diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(),
+                    candidates=["creep", "external_load", "viscous_friction"], max_rounds=1,
+                    top=1, max_steps=1, fallback=False, work_budget=work_budget)
+
+
+def test_work_past_the_work_budget_is_skipped_and_said(base):
+    """The first refits always run; a fallback refit whose counted work would pass the
+    budget is skipped, with a note on the entry, in the diagnosis and in its record."""
+    d = _budget_run(base, 1.0)  # one sample-evaluation: less than any fit
     refitted = [r for r in d.rounds[0] if r.refitted]
-    skipped = [r for r in d.rounds[0] if r.note.startswith("skipped: it would end past")]
+    skipped = [r for r in d.rounds[0] if r.note.startswith("skipped: its ")]
     assert len(refitted) == 1 and not refitted[0].accepted  # the leader, a wrong entry
     assert skipped and not skipped[0].refitted
-    assert any(n.startswith("Time budget 0.001 s: skipped refit")
+    assert all("would pass the work budget of 1 " in r.note for r in skipped)
+    assert any(n.startswith("Work budget 1 sample-evaluations: skipped refit")
                and all(f"refit {r.name}" in n for r in skipped) for n in d.notes), d.notes
+    assert sorted(d.work["skipped"]) == sorted(f"refit {r.name}" for r in skipped)
+    assert d.work["total"] == 1.0 and d.work["spent"] > 1.0
     assert d.verdict == "unexplained residual"
+
+
+def test_a_slow_or_busy_machine_skips_nothing_more(base, monkeypatch):
+    """Decisions never read the clock: with the clock running 10^6 times slow (every
+    second of work an 11-day wait) the default budget still refits every entry the
+    previous test skipped."""
+    import time
+
+    real, t0 = time.perf_counter, time.perf_counter()
+    monkeypatch.setattr(time, "perf_counter", lambda: t0 + 1e6 * (real() - t0))
+    d = _budget_run(base, DEFAULT_WORK_BUDGET)
+    assert d.work["skipped"] == [] and not any("budget" in n for n in d.notes)
+    assert len([r for r in d.rounds[0] if r.refitted]) >= 2  # the leader and a fallback
+    assert d.timings["total_s"] > 1e6  # the clock was slow: seconds are for display
 
 
 def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profile(base):

@@ -1,64 +1,158 @@
-"""The diagnosis's time budget: what it allows, and the CLI default that mirrors it."""
+"""The diagnosis's work budget: counted work, what it allows, that no clock decides,
+and the CLI that exposes it."""
+
+import time
 
 import pytest
 
+from stickslip_jax.diagnose import budget as budget_mod
 from stickslip_jax.diagnose.budget import (
-    DEFAULT_TIME_BUDGET_S,
+    DEFAULT_WORK_BUDGET,
     DRIVE_STAGE_FACTOR,
-    REFIT_GUESS_S,
+    TANGENT_WEIGHT,
+    UNIT,
     Budget,
+    evaluation_work,
+    fit_work,
 )
+
+PROTOCOL_SAMPLES = 17 * 2500
+"""The paper's 17-recording protocol on its padded grid (17 recordings, the longest
+2500 samples at 25 kHz)."""
+BASELINE_COLUMNS = 42
+"""The baseline's θ on it: Mp, Dp, Kp, Ds, rho0, 35 PI weights, z_ba per direction."""
+
+
+def test_work_is_counted_from_samples_columns_steps_and_drive_stage():
+    assert evaluation_work(1000, 0) == 1000.0
+    assert evaluation_work(1000, 10) == pytest.approx(1000 * (1 + 10 * TANGENT_WEIGHT))
+    assert evaluation_work(1000, 10, drive_stage=True) == pytest.approx(
+        DRIVE_STAGE_FACTOR * evaluation_work(1000, 10))
+    # A fit of s steps evaluates the start and then once per step.
+    assert fit_work(1000, 3, 25) == 26 * evaluation_work(1000, 3)
+    assert fit_work(1000, 3, 0) == evaluation_work(1000, 3)
+
+
+def test_the_default_is_about_what_540_s_allowed_on_the_protocol():
+    """540 s on a quiet 2-core CPU: about 1.15 s per baseline-sized Jacobian evaluation
+    of the 17 recordings (module docstring), so 400-550 of them."""
+    one = evaluation_work(PROTOCOL_SAMPLES, BASELINE_COLUMNS)
+    assert 400 <= DEFAULT_WORK_BUDGET / one <= 550
+    # A 25-step refit of the baseline with a 1-parameter entry: ~4 % of the default, so
+    # about 20 such refits fit in it; with a drive stage about 2.5x fewer.
+    refit = fit_work(PROTOCOL_SAMPLES, BASELINE_COLUMNS + 1, 25)
+    assert 15 <= DEFAULT_WORK_BUDGET / refit <= 25
 
 
 def test_the_budget_allows_work_that_ends_within_it():
-    b = Budget(100.0, start=0.0)
-    b.elapsed = lambda: 40.0  # a run 40 s in
+    b = Budget(100.0)
+    b.charge(40.0)
+    assert b.spent == 40.0
     assert b.allows(60.0)
     assert not b.allows(60.5)
-    assert b.allows(30.0, reserve_s=30.0)
-    assert not b.allows(30.0, reserve_s=31.0)
-
-
-def test_refit_estimates_follow_the_refits_seen():
-    b = Budget(100.0)
-    assert b.refit_estimate() == REFIT_GUESS_S
-    assert b.refit_estimate(drive_stage=True) == REFIT_GUESS_S * DRIVE_STAGE_FACTOR
-    assert b.learned_estimate() == 2 * REFIT_GUESS_S
-    # set_10 from the profile: three refits without a drive stage.
-    for wall in (30.2, 44.8, 37.8):
-        b.record_refit(wall, drive_stage=False)
-    assert b.refit_estimate() == 44.8  # the slowest of its kind
-    # An amplifier refit not timed yet: the others scaled (it took 101.9 s).
-    assert b.refit_estimate(drive_stage=True) == pytest.approx(44.8 * DRIVE_STAGE_FACTOR)
-    b.record_refit(101.9, drive_stage=True)
-    assert b.refit_estimate(drive_stage=True) == 101.9
-    assert b.refit_estimate() == 44.8
-    assert b.learned_estimate() == pytest.approx(60.4)  # two of the quickest
-    # Only refits with a drive stage seen (every model after an amplifier's acceptance).
-    c = Budget(100.0)
-    c.record_refit(108.0, drive_stage=True)
-    assert c.refit_estimate() == pytest.approx(108.0 / DRIVE_STAGE_FACTOR)
+    assert b.allows(30.0, reserve=30.0)
+    assert not b.allows(30.0, reserve=31.0)
 
 
 @pytest.mark.parametrize("total", [None, 0.0, -5.0])
 def test_no_budget_allows_everything(total):
-    b = Budget(total, start=0.0)
-    b.elapsed = lambda: 1e9
-    assert b.total_s is None and b.allows(1e9, reserve_s=1e9)
+    b = Budget(total)
+    b.charge(1e30)
+    assert b.total is None and b.allows(1e30, reserve=1e30)
+    assert "no work budget" in b.progress()
 
 
 def test_a_skip_is_recorded_with_its_reason():
-    b = Budget(540.0, start=0.0)
-    b.elapsed = lambda: 512.4
-    note = b.skip("refit stribeck")
+    b = Budget(1e8)
+    b.charge(9.5e7)
+    note = b.skip("refit stribeck", 1.2e7)
     assert b.skipped == ["refit stribeck"]
-    assert "540 s" in note and "512 s spent" in note
+    assert note == (f"skipped: its 1.2e+07 {UNIT} would pass the work budget of 1e+08 "
+                    f"(9.5e+07 spent)")
+    assert b.record() == {"unit": UNIT, "total": 1e8, "spent": 9.5e7,
+                          "skipped": ["refit stribeck"]}
 
 
-def test_the_cli_default_is_the_library_default():
+def _scripted_run(budget: Budget) -> list[str]:
+    """A diagnosis's budget calls, scripted: core work charged, then optional refits
+    (a drive-stage entry among them) asked for with the learned correction's reserve;
+    a refit that runs is charged at the steps it took. Returns the decisions."""
+    n, k = PROTOCOL_SAMPLES, BASELINE_COLUMNS
+    budget.charge(fit_work(n, k, 99))  # identification from the profile, about
+    budget.charge(fit_work(n, k, 75))  # baseline polish
+    budget.charge(evaluation_work(n, k + 20))  # scores
+    for _ in range(5):  # sizings: 1-3 parameters, 15 steps
+        budget.charge(fit_work(n, 2, 15))
+    reserve = 2 * fit_work(n, k + 6, 25)
+    decisions = []
+    for name, drive, steps_taken in [("creep", False, 25), ("stribeck", False, 11),
+                                     ("drive_bandwidth", True, 25), ("external_load", False, 25),
+                                     ("structural_mode", False, 25), ("sensor_delay", False, 25),
+                                     ("contact_damping", False, 25)]:
+        need = fit_work(n, k + 1, 25, drive)
+        if budget.allows(need, reserve):
+            budget.charge(fit_work(n, k + 1, steps_taken, drive))
+            decisions.append(f"refit {name}")
+            time.sleep(0)  # where the real run spends its seconds
+        else:
+            budget.skip(f"refit {name}", need)
+            decisions.append(f"skip {name}")
+        budget.progress()  # the display reads the clock; nothing else may
+    return decisions
+
+
+def test_the_decisions_do_not_depend_on_the_clock(monkeypatch):
+    """The same work, on a machine 100x faster, 100x slower, or one whose clock jumps
+    (a busy machine): identical decisions and records. Only the ETA differs."""
+    real = time.perf_counter
+
+    def run(rate: float, jumps: bool = False):
+        t0 = real()
+        calls = [0]
+
+        def clock():
+            calls[0] += 1
+            return t0 + rate * (real() - t0) + (1e4 * calls[0] if jumps else 0.0)
+        monkeypatch.setattr(time, "perf_counter", clock)
+        monkeypatch.setattr(budget_mod.time, "perf_counter", clock)
+        b = Budget(DEFAULT_WORK_BUDGET)
+        decisions = _scripted_run(b)
+        record = b.record()
+        return decisions, record
+
+    quick, slow, busy = run(0.01), run(100.0), run(1.0, jumps=True)
+    assert quick == slow == busy
+    decisions, record = quick
+    # The budget bites part-way: some refits ran, the later ones were skipped.
+    assert "refit creep" in decisions and "skip contact_damping" in decisions
+    assert record["skipped"] == [d.replace("skip ", "refit ") for d in decisions
+                                 if d.startswith("skip")]
+
+
+def test_the_progress_line_gives_an_eta_from_the_clock_only():
+    now = [100.0]
+    b = Budget(1e8, clock=lambda: now[0])
+    b.charge(2.5e7)
+    now[0] = 130.0  # 30 s for a quarter of the budget
+    line = b.progress()
+    assert "25 % of the work budget" in line and "about 90 s" in line
+
+
+def test_the_cli_takes_a_multiple_of_the_default_and_refuses_seconds(tmp_path):
     import inspect
 
-    from stickslip_jax.cli.diagnose_cmd import diagnose_command
+    from typer.testing import CliRunner
 
-    option = inspect.signature(diagnose_command).parameters["time_budget"].default
-    assert option.default == DEFAULT_TIME_BUDGET_S
+    from stickslip_jax.cli.diagnose_cmd import diagnose_command
+    from stickslip_jax.cli.main import app
+
+    option = inspect.signature(diagnose_command).parameters["work_budget"].default
+    assert option.default == 1.0
+    runner = CliRunner()
+    res = runner.invoke(app, ["diagnose", str(tmp_path), "--out", str(tmp_path / "o"),
+                              "--time-budget", "540"])
+    assert res.exit_code == 2
+    assert "--time-budget is replaced by --work-budget" in res.output
+    res = runner.invoke(app, ["diagnose", str(tmp_path), "--out", str(tmp_path / "o"),
+                              "--work-budget", "-1"])
+    assert res.exit_code == 2 and "--work-budget must be 0" in res.output

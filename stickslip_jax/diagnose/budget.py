@@ -1,72 +1,132 @@
-"""A wall-clock budget for the optional work of a diagnosis.
+"""A work budget for the optional work of a diagnosis, counted, not timed.
 
 The diagnosis's core (baseline, score, sizing, the first refits of round one, the
 learned correction when nothing explains the residual) always runs. What only might
 change the answer (fallback refits, second looks, re-identifications, later rounds)
-is skipped, and said to be, when its estimated duration would carry the run past the
+is skipped, and said to be, when its estimated work would carry the run past the
 budget: a user asked for a diagnosis in minutes, not one that silently takes an hour.
+
+Decisions never read a clock: the same recordings give the same decisions on a fast
+machine, a slow one or a busy one (issue #27). Wall time is measured only for display
+(:meth:`Budget.progress`: the share spent and an ETA at the run's own pace).
+
+**Unit: the sample-evaluation.** The simulator advancing one recording by one sample
+once, carrying the residual's value. Every residual evaluation of a fit also carries
+its Jacobian's columns in forward mode; a column adds :data:`TANGENT_WEIGHT` of a
+value pass. A model with a drive (input) stage costs :data:`DRIVE_STAGE_FACTOR` times
+as much per sample. So one evaluation of ``samples`` samples with ``columns`` free
+parameters is ``samples · (1 + TANGENT_WEIGHT · columns) · (DRIVE_STAGE_FACTOR if
+drive else 1)`` sample-evaluations (:func:`evaluation_work`), where ``samples`` is the
+padded grid (recordings × the longest one's samples: the rows step together), and a
+Levenberg-Marquardt fit of ``s`` steps makes ``s + 1`` evaluations (the start, then
+one per step). Work done is charged from the steps the solver reports; work to come
+is estimated before it runs from counts alone: samples, free parameters, ``max_steps``
+(an upper bound: the refits the budget guards mostly stop there), drive stage.
+These counts do not depend on the machine; they depend on the data only through the
+solver's step counts, which are the same wherever the arithmetic is.
+
+**Default: 1e8 sample-evaluations** (:data:`DEFAULT_WORK_BUDGET`), what the former
+540 s wall-clock budget allowed on a quiet 2-core CPU on the paper's 17-recording
+protocol (42 500 padded samples, 42 baseline parameters: one evaluation is
+42 500 · (1 + 0.1 · 42) ≈ 2.2e5 sample-evaluations). There a Jacobian evaluation of
+the baseline took 1.15 s (:class:`~stickslip_jax.identify.solve.ColumnSplitJacobian`)
+and a 25-step refit (26 evaluations) 20-45 s, so 540 s held about 450 such
+evaluations ≈ 1.0e8. A rough tally of the set that ended at the old budget (set_10
+from the profile, 539 s: identification, a 75-step polish, scores and sizings, four
+refits, one with a drive stage, three re-identifications, the learned correction)
+comes to the same 450-500 evaluations. Compilation is not counted (it took part of
+those 540 s), so a run that spends the whole default may take somewhat longer than
+nine minutes on such a machine; it takes the same decisions on every machine.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
-DEFAULT_TIME_BUDGET_S = 540.0
-"""Default budget of a diagnosis [s]: nine minutes, so that a 17-recording set with its
-report and figures ends within ten on a 2-core CPU."""
-REFIT_GUESS_S = 60.0
-"""Duration assumed for a refit before any has been timed [s] (17 recordings of the
-paper's protocol, 25 steps, 2-core CPU: 20-45 s without a drive stage)."""
+DEFAULT_WORK_BUDGET = 1.0e8
+"""Default work budget of a diagnosis [sample-evaluations] (module docstring: what 540 s
+allowed on a quiet 2-core CPU on the paper's 17-recording protocol)."""
+UNIT = "sample-evaluations"
+"""The budget's unit, as reports name it (module docstring)."""
+TANGENT_WEIGHT = 0.1
+"""Cost of one Jacobian column relative to the value pass it rides on [-]. A pass's
+cost is mostly per-operation overhead, not arithmetic: through a 17-recording residual
+one tangent took 0.42 s and 22 vmapped 1.15 s, 0.035 s (≈ 0.08 of the pass) per added
+column; rounded up."""
 DRIVE_STAGE_FACTOR = 2.5
-"""How much longer a refit takes when the model has a drive (input) stage: the
+"""How much more a sample costs when the model has a drive (input) stage [-]: the
 hysteresis is then evaluated at every RK4 stage instead of once per sample interval.
-Measured, same run: 102 s against 30-45 s (set_10), 92 against 22-38 s (a two-pole
-amplifier), 108 against 20-31 s (another)."""
+Measured, same run: refits of 102 s against 30-45 s (set_10), 92 against 22-38 s (a
+two-pole amplifier), 108 against 20-31 s (another)."""
+REIDENTIFY_EVALUATIONS = 35
+"""Work assumed for a re-identification's staged steps before they run, in evaluations
+of the whole data set at the refit's size [-]: they took 20-40 s on the paper's
+protocol, at about 1.15 s per such evaluation. Charged afterwards from the steps the
+identification reports."""
+
+
+def evaluation_work(samples: int, columns: int, drive_stage: bool = False) -> float:
+    """One evaluation of a residual over ``samples`` padded samples and its Jacobian of
+    ``columns`` columns (0: the value only) [sample-evaluations]."""
+    factor = DRIVE_STAGE_FACTOR if drive_stage else 1.0
+    return float(samples) * (1.0 + TANGENT_WEIGHT * columns) * factor
+
+
+def fit_work(samples: int, columns: int, steps: int, drive_stage: bool = False) -> float:
+    """A Levenberg-Marquardt fit of ``steps`` steps: ``steps + 1`` evaluations (the start,
+    then one per step) [sample-evaluations]. With ``steps = max_steps``: the most it can
+    cost, known before it runs."""
+    return (int(steps) + 1) * evaluation_work(samples, columns, drive_stage)
 
 
 class Budget:
-    """Elapsed time against ``total_s`` [s] (``None`` or ≤ 0: no limit) from ``start``
-    (``time.perf_counter()``), with the refit durations seen so far."""
+    """Counted work against ``total`` [sample-evaluations] (``None`` or ≤ 0: no limit).
 
-    def __init__(self, total_s: float | None, start: float | None = None):
-        self.total_s = float(total_s) if total_s and total_s > 0 else None
-        self.start = time.perf_counter() if start is None else start
-        self.refit_walls: dict[bool, list[float]] = {False: [], True: []}
+    ``clock`` (default ``time.perf_counter``) is read only for :meth:`progress`'s
+    display, never by :meth:`allows`.
+    """
+
+    def __init__(self, total: float | None, clock: Callable[[], float] | None = None):
+        self.total = float(total) if total and total > 0 else None
+        self.spent = 0.0
         self.skipped: list[str] = []
+        self._clock = clock or time.perf_counter
+        self._start = self._clock()
 
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.start
+    def charge(self, work: float) -> None:
+        """Work done [sample-evaluations]."""
+        self.spent += float(work)
 
-    def record_refit(self, wall_s: float, drive_stage: bool) -> None:
-        """A refit took ``wall_s`` [s]; ``drive_stage``: its model had an input stage."""
-        self.refit_walls[bool(drive_stage)].append(float(wall_s))
-
-    def refit_estimate(self, drive_stage: bool = False) -> float:
-        """A refit's expected duration [s]: the longest seen so far of its kind (with or
-        without a drive stage), else the other kind's scaled by
-        :data:`DRIVE_STAGE_FACTOR`, else :data:`REFIT_GUESS_S` (scaled alike)."""
-        factor = {False: 1.0, True: DRIVE_STAGE_FACTOR}
-        if self.refit_walls[drive_stage]:
-            return max(self.refit_walls[drive_stage])
-        other = self.refit_walls[not drive_stage]
-        plain = max(other) / factor[not drive_stage] if other else REFIT_GUESS_S
-        return plain * factor[drive_stage]
-
-    def learned_estimate(self) -> float:
-        """The learned correction's expected duration [s]: two fits of the baseline and
-        the correction, each about as long as the quickest refit seen."""
-        walls = self.refit_walls[False] + self.refit_walls[True]
-        return 2.0 * min(walls, default=REFIT_GUESS_S)
-
-    def allows(self, estimate_s: float, reserve_s: float = 0.0) -> bool:
-        """Work of ``estimate_s`` [s] ends, with ``reserve_s`` [s] kept for what must
-        follow, within the budget."""
-        if self.total_s is None:
+    def allows(self, estimate: float, reserve: float = 0.0) -> bool:
+        """Work of ``estimate``, with ``reserve`` kept for what must follow
+        [sample-evaluations], ends within the budget."""
+        if self.total is None:
             return True
-        return self.elapsed() + estimate_s + reserve_s <= self.total_s
+        return self.spent + estimate + reserve <= self.total
 
-    def skip(self, what: str) -> str:
-        """Record ``what`` as skipped; the note to attach to it."""
+    def skip(self, what: str, estimate: float) -> str:
+        """Record ``what`` (estimated at ``estimate`` [sample-evaluations]) as skipped;
+        the note to attach to it."""
         self.skipped.append(what)
-        return (f"skipped: it would end past the time budget of {self.total_s:g} s "
-                f"({self.elapsed():.0f} s spent)")
+        return (f"skipped: its {estimate:.3g} {UNIT} would pass the work budget of "
+                f"{self.total:.3g} ({self.spent:.3g} spent)")
+
+    def progress(self) -> str:
+        """The share of the budget spent and, at this run's pace, the time to its end:
+        for display only."""
+        elapsed = self._clock() - self._start
+        line = f"{self.spent:.3g} {UNIT} in {elapsed:.0f} s"
+        if self.total is None:
+            return line + " (no work budget)"
+        line += f", {100 * self.spent / self.total:.0f} % of the work budget"
+        if 0 < self.spent < self.total:
+            eta = elapsed * (self.total - self.spent) / self.spent
+            line += f"; the rest of it would take about {eta:.0f} s at this pace"
+        return line
+
+    def record(self) -> dict:
+        """What ``diagnosis.json`` keeps: the unit, the budget, the work done and what
+        was skipped."""
+        return {"unit": UNIT, "total": self.total, "spent": self.spent,
+                "skipped": list(self.skipped)}

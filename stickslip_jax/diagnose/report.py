@@ -77,6 +77,8 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "candidates_by_round": rounds,
         "indistinguishable_here": d.not_testable,
         "notes": d.notes,
+        # What decided which optional work ran: counted work, never seconds.
+        "work_budget": d.work,
         "timings_s": d.timings,
     }
     if d.unexplained is not None:

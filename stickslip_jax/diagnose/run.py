@@ -52,11 +52,13 @@
    correction (:class:`~stickslip_jax.model.extensions.LearnedForce`, sparse
    regression) and report it as ``unexplained`` with what it depends on.
 
-A time budget (:mod:`.budget`, ``time_budget_s``) bounds the run: the baseline, the
-scores, the sizings, round one's first refits and the learned correction always run;
-fallback refits, second looks, re-identifications and later rounds are skipped when
-their estimated duration would end past it (time is kept for the learned correction
-while nothing is accepted), and the entries' notes and the diagnosis's notes say so.
+A work budget (:mod:`.budget`, ``work_budget``, in sample-evaluations: counted solver
+work, never seconds, so that machine speed and load cannot change a decision) bounds
+the run: the baseline, the scores, the sizings, round one's first refits and the
+learned correction always run, and their work is charged; fallback refits, second
+looks, re-identifications and later rounds are skipped when their estimated work
+would pass it (work is kept for the learned correction while nothing is accepted),
+and the entries' notes and the diagnosis's notes say so.
 """
 
 from __future__ import annotations
@@ -89,7 +91,14 @@ from ..identify.steps import (
 from ..model.actuator import Actuator
 from ..model.extensions import LEARNED_FEATURES, LearnedForce
 from ..noise import noise_sigma
-from .budget import DEFAULT_TIME_BUDGET_S, Budget
+from .budget import (
+    DEFAULT_WORK_BUDGET,
+    REIDENTIFY_EVALUATIONS,
+    UNIT,
+    Budget,
+    evaluation_work,
+    fit_work,
+)
 from .catalogue import CATALOGUE, Candidate, Probe
 from .locate import RecordingResidual, analyse_recording, mismatch_entries, residual_peaks
 
@@ -121,9 +130,6 @@ identification's optimum and the whitened one lie in different valleys, the mark
 an identification bent to mimic an effect. Seen: 3.0x and 8.8x with an 8 µs delay
 (two noise draws; re-identified, named), 1.36x for set_03 and set_10 (a slew-limited
 drive, an uncatalogued effect: three re-identifications, 60 s, nothing found)."""
-REIDENTIFY_GUESS_S = 40.0
-"""Duration of a re-identification's staged steps assumed by the time budget [s]
-(measured 20-40 s on the paper's protocol), before its refit."""
 SIZE_AT_MOST = 5
 """Entries sized per round (the largest |score| first)."""
 WRONG_SIGN_SHARE = 0.2
@@ -239,6 +245,9 @@ class Diagnosis:
     numerical_error_m: np.ndarray | None = None
     """Per recording: the simulator's error at the final model, RMS, offset removed [m]
     (step doubling, :func:`~stickslip_jax.identify.residuals.numerical_error`)."""
+    work: dict = field(default_factory=dict)
+    """The work budget: its unit, ``total`` (None: no limit), the work ``spent`` and
+    what was ``skipped`` (:meth:`.budget.Budget.record`)."""
 
 
 def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
@@ -251,11 +260,25 @@ def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
 
 
 class _Problem:
-    """The data, the noise levels and the whitened residual of any actuator."""
+    """The data, the noise levels and the whitened residual of any actuator; every
+    simulation it runs is charged to ``budget`` (:mod:`.budget`)."""
 
-    def __init__(self, data: Dataset, sigmas: np.ndarray, fix: dict, echo):
+    def __init__(self, data: Dataset, sigmas: np.ndarray, fix: dict, echo,
+                 budget: Budget | None = None):
         self.data, self.sigmas, self.fix, self.say = data, sigmas, fix, echo
+        self.budget = budget or Budget(None)
         self.n_obs = int(data.mask.sum())
+        self.samples = int(data.mask.size)  # the padded grid the simulator steps
+
+    def evaluation_work(self, act: Actuator, columns: int) -> float:
+        """One evaluation of the residual of ``act`` with a Jacobian of ``columns``
+        columns [sample-evaluations]."""
+        return evaluation_work(self.samples, columns, _has_drive_stage(act))
+
+    def fit_estimate(self, act: Actuator, columns: int, max_steps: int) -> float:
+        """The most a fit of ``columns`` parameters from ``act`` can cost
+        [sample-evaluations], known before it runs."""
+        return fit_work(self.samples, columns, max_steps, _has_drive_stage(act))
 
     def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:
         return WhitenedResiduals(TraceResiduals.make(pmap, self.data, in_metres=True),
@@ -265,6 +288,7 @@ class _Problem:
         """(whitened RSS, NRMSE per recording, simulated outputs) of ``act``."""
         r, q = _whitened_and_output(self.residuals(ParameterMap.make(act, [])))
         r = np.asarray(r)
+        self.budget.charge(evaluation_work(self.samples, 0, _has_drive_stage(act)))
         return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
 
     def cost_of_output(self, act: Actuator, q) -> float:
@@ -287,6 +311,8 @@ class _Problem:
         res = self.residuals(pmap)
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=label,
                                   echo=None)
+        self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations,
+                                    _has_drive_stage(act)))
         fitted = pmap.actuator(jnp.asarray(out.theta))
         self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
                  f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")
@@ -324,6 +350,8 @@ def score_candidates(problem: _Problem, act: Actuator, base_names: list[str],
     specs = {e[2]: e[3] for e in entries}
     pmap = ParameterMap.make(probe_act, names, specs)
     r, jac = value_and_jacobian(problem.residuals(pmap), pmap.zeros())
+    problem.budget.charge(evaluation_work(problem.samples, jac.shape[1],
+                                          _has_drive_stage(probe_act)))
     n_base = jac.shape[1] - len(entries)
     jb = jac[:, :n_base]
     norms = np.linalg.norm(jb, axis=0)
@@ -625,6 +653,24 @@ def _has_drive_stage(act: Actuator) -> bool:
     return not act.input_stage.is_identity
 
 
+def _identification_work(ident, data: Dataset, drive_stage: bool) -> float:
+    """The work of an identification [sample-evaluations]: its steps, from the steps
+    each took on its recordings (padded to the longest of them) with its free
+    parameters, then its final simulation of every recording, with the last step's
+    Jacobian when it computed an uncertainty."""
+    lengths = {r.name: len(r.time_s) for r in data.recordings}
+    work, last = 0.0, 0
+    for st in ident.steps:
+        if st.result is None or not st.recordings:
+            continue
+        samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
+                                           for n in st.recordings)
+        last = int(np.size(st.result.theta))
+        work += fit_work(samples, last, st.result.iterations, drive_stage)
+    columns = last if ident.uncertainty is not None else 0
+    return work + evaluation_work(int(data.mask.size), columns, drive_stage)
+
+
 def _terms(act: Actuator) -> list[str]:
     terms = ["piezo", type(act.hysteresis).__name__, "slider", type(act.friction).__name__]
     if not act.input_stage.is_identity:
@@ -639,7 +685,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
              identify_steps: Sequence[str] = STEPS, candidates: Sequence[str] | None = None,
              max_rounds: int = 3, top: int = 3, max_steps: int = 25, fallback: bool = True,
              size_at_most: int = SIZE_AT_MOST,
-             time_budget_s: float | None = DEFAULT_TIME_BUDGET_S,
+             work_budget: float | None = DEFAULT_WORK_BUDGET,
              echo: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose what the baseline model leaves out of ``recordings`` (module docstring).
 
@@ -650,14 +696,15 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     refit at most this many entries per round; ``max_steps`` LM steps per refit;
     ``size_at_most`` entries sized per round (largest |score| first); ``fallback``
     fit the learned correction when no entry explains the residual;
-    ``time_budget_s`` [s] skip the optional work (fallback refits, second looks,
-    re-identifications, refits after round one) that would end past it, and say so in
-    the notes (``None`` or 0: no limit; :mod:`.budget`).
+    ``work_budget`` [sample-evaluations] skip the optional work (fallback refits, second
+    looks, re-identifications, refits after round one) whose counted work would pass
+    it, and say so in the notes (``None`` or 0: no limit; :mod:`.budget`). No decision
+    depends on wall time; ``timings`` are for display.
     """
     say = echo or (lambda s: None)
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
-    budget = Budget(time_budget_s, t_all)
+    budget = Budget(work_budget)
     data = Dataset.from_recordings(recordings)
     fix = dict(fix or {})
     notes: list[str] = []
@@ -666,7 +713,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         notes.append(f"Ms held at {fix['Ms']:g} kg (position data fix only ratios of the "
                      f"masses, dampings and stiffnesses).")
     sigmas = np.array([noise_sigma(r) for r in data.recordings])
-    problem = _Problem(data, sigmas, fix, say)
+    problem = _Problem(data, sigmas, fix, say, budget)
 
     # 1. Baseline.
     t0 = time.perf_counter()
@@ -676,10 +723,12 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         ident = identify(data.recordings, init=init, fix=fix, steps=identify_steps,
                          max_steps=60, echo=say)
         act = ident.actuator
+        budget.charge(_identification_work(ident, data, _has_drive_stage(init)))
         notes += [f"Baseline identification, step '{s.name}': {s.result.message}; the "
                   f"polish starts from where it stopped." for s in ident.steps
                   if s.result is not None and not s.converged]
     base_names = baseline_free(act, data, fix)
+    n_base = int(np.size(ParameterMap.make(act, base_names).zeros()))  # θ columns
     unpolished = act
     act, rss, polish = problem.fit(act, base_names, {}, label="baseline polish",
                                    max_steps=3 * max_steps)
@@ -702,6 +751,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                                  for r in data.recordings)}
     say(f"[baseline] NRMSE {100 * nrmse0.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
         f"{len(mismatch)} recording(s) flagged; residual peaks {hints['peaks_Hz']}")
+    say(f"[budget] {budget.progress()}")
 
     # Identification steps a re-identification with an entry attached repeats (the
     # refit that follows is the joint step).
@@ -717,12 +767,15 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     accepted: list[CandidateResult] = []
     rounds: list[list[CandidateResult]] = []
     nrmse_now = float(nrmse0.mean())
+    round_one_work = 0.0  # what round one's scores and sizings cost
     for rnd in range(max_rounds):
-        if rnd > 0 and not budget.allows(timings["score_round1_s"]
-                                         + budget.refit_estimate(_has_drive_stage(act))):
-            budget.skip(f"round {rnd + 1}")
-            say(f"[budget] round {rnd + 1} skipped: it would end past the time budget")
+        # A later round: its scores and sizings (as round one's) and one refit.
+        later = round_one_work + problem.fit_estimate(act, n_base + 1, max_steps)
+        if rnd > 0 and not budget.allows(later):
+            note = budget.skip(f"round {rnd + 1}", later)
+            say(f"[budget] round {rnd + 1} {note}")
             break
+        spent_before_round = budget.spent
         if rss / n_obs <= ADEQUATE_CHI2 and not any(a.flagged for a in analyses0) and rnd == 0:
             say("[score] residual at the noise level; scoring anyway for the record")
         t0 = time.perf_counter()
@@ -783,6 +836,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             sized[res.name] = (start, specs)
         ranked = sorted([r for r in results if r.name in sized],
                         key=lambda r: -_rank_value(r))
+        if rnd == 0:
+            round_one_work = budget.spent - spent_before_round
         excess = max(rss - n_obs, 1e-9)
 
         def record(res, fitted, out, specs, t0, rss=rss, nrmse_now=nrmse_now,
@@ -804,16 +859,23 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             # Not converged: its ΔBIC is an upper bound (more steps could only lower it).
             res.note = "" if out.converged else f"refit {out.message}"
 
-        def reserve():
-            # Time kept for the learned correction, which follows when nothing explains.
-            return budget.learned_estimate() if fallback and not accepted else 0.0
+        def reserve(act=act):
+            # Work kept for the learned correction, which follows when nothing explains:
+            # its two fits (all features, then the kept ones) with the baseline free.
+            if not fallback or accepted:
+                return 0.0
+            return 2 * problem.fit_estimate(act, n_base + len(LEARNED_FEATURES), max_steps)
+
+        def refit_columns(start, specs):
+            # The baseline's θ and the entry's own quantities, freed together.
+            return n_base + sum(np.size(np.asarray(s.getter(start))) for s in specs.values())
 
         def refit(res, pool=pool, sized=sized, budgeted=True):
             cand = next(c for c in pool if c.name == res.name)
             start, specs = sized[res.name]
-            heavy = _has_drive_stage(start)
-            if budgeted and not budget.allows(budget.refit_estimate(heavy), reserve()):
-                res.note = budget.skip(f"refit {cand.name}")
+            need = problem.fit_estimate(start, refit_columns(start, specs), max_steps)
+            if budgeted and not budget.allows(need, reserve()):
+                res.note = budget.skip(f"refit {cand.name}", need)
                 say(f"[budget] refit {cand.name} {res.note}")
                 return
             t0 = time.perf_counter()
@@ -825,28 +887,33 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                 res.note = f"refit not possible: {err}"
                 say(f"[refit {cand.name}] {res.note}")
                 return
-            budget.record_refit(time.perf_counter() - t0, heavy)
             record(res, fitted, out, specs, t0)
+            say(f"[budget] {budget.progress()}")
 
         def reidentify(res, bar, pool=pool, sized=sized):
             # The identification bends the paper's model to mimic a large effect (an
             # 8 µs delay: Mp 12x off), a valley a refit from the bent baseline does not
             # leave in its steps; the staged steps with the entry free find the other.
             cand = next(c for c in pool if c.name == res.name)
-            heavy = _has_drive_stage(sized[res.name][0])
-            if not budget.allows(REIDENTIFY_GUESS_S + budget.refit_estimate(heavy), reserve()):
-                res.note = "; ".join(filter(None, [
-                    res.note, budget.skip(f"re-identification of {cand.name}")]))
-                say(f"[budget] re-identification of {cand.name} skipped")
+            source, specs = sized[res.name]
+            # The staged steps (assumed; charged as they ran afterwards), then the refit.
+            columns = refit_columns(source, specs)
+            need = (REIDENTIFY_EVALUATIONS * problem.evaluation_work(source, columns)
+                    + problem.fit_estimate(source, columns, max_steps))
+            if not budget.allows(need, reserve()):
+                note = budget.skip(f"re-identification of {cand.name}", need)
+                res.note = "; ".join(filter(None, [res.note, note]))
+                say(f"[budget] re-identification of {cand.name} {note}")
                 return
             t0 = time.perf_counter()
-            source, specs = sized[res.name]
             if res.actuator is not None:
                 source = res.actuator  # the entry's values after its refit
             try:
-                ident = identify(data.recordings, init=_entry_on(init, source, cand.slot),
-                                 fix=fix, steps=staged, extra=specs, max_steps=60,
-                                 uncertainty=False)
+                entry_init = _entry_on(init, source, cand.slot)
+                ident = identify(data.recordings, init=entry_init, fix=fix, steps=staged,
+                                 extra=specs, max_steps=60, uncertainty=False)
+                budget.charge(_identification_work(ident, data,
+                                                   _has_drive_stage(entry_init)))
                 rss_staged = problem.cost_of_output(ident.actuator, ident.q_sim)
             except ValueError as err:
                 say(f"[re-identify {cand.name}] not possible: {err}")
@@ -928,9 +995,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             break
 
     if budget.skipped:
-        notes.append(f"Time budget {budget.total_s:g} s: skipped "
+        notes.append(f"Work budget {budget.total:.3g} {UNIT}: skipped "
                      f"{', '.join(budget.skipped)} (their notes say so); "
-                     f"--time-budget 0 lifts the limit.")
+                     f"--work-budget 0 lifts the limit, --work-budget 2 doubles it.")
     rss_final, nrmse_f, qf = problem.evaluate(act)
     unexplained = None
     # Structure the catalogue left: the residual is above the noise and the accepted
@@ -973,7 +1040,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         f"{numerical.max() * 1e9:.3g} nm RMS per recording (noise: "
         f"{sigmas.min() * 1e9:.3g}-{sigmas.max() * 1e9:.3g} nm)")
     timings["total_s"] = time.perf_counter() - t_all
+    say(f"[budget] {budget.progress()}")
     return Diagnosis(data, sigmas, baseline, act, nrmse0, nrmse_f, chi2_0, rss_final / n_obs,
                      analyses0, analyses_f, mismatch, accepted, rounds, not_testable,
                      unexplained, verdict, q0, qf, _terms(act), timings, notes,
-                     [float(p) for p in hints["peaks_Hz"]], numerical)
+                     [float(p) for p in hints["peaks_Hz"]], numerical, budget.record())
