@@ -114,6 +114,9 @@ def test_a_sine_needs_two_periods_and_samples_between_play_thresholds():
     assert "1.9 period(s) of its 50 Hz drive, fewer than 2 (40 ms)" in \
         sine_problem(sine_rec(1.9), thresholds)
     assert sine_problem(sine_rec(2.0), thresholds) is None
+    # One sample short of two periods (999 at 25 kHz) is short; the count says so.
+    assert "1.998 period(s) of its 50 Hz drive, fewer than 2" in \
+        sine_problem(sine_rec(1.998), thresholds)
     fast = sine_rec(2.0, f=2000.0)  # 12.5 samples per period for 35 thresholds
     problem = sine_problem(fast, thresholds)
     assert "weights cannot be told apart" in problem and "--n-pi" in problem

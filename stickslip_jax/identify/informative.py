@@ -250,7 +250,7 @@ def _periods_problem(rec: Recording) -> str | None:
         return f"{rec.name}: the drive frequency is unknown (give frequency_Hz)"
     # Half a sample of slack: a duration is rounded to whole samples.
     if _periods(rec) + 0.5 * rec.dt * f < MIN_DRIVE_PERIODS:
-        return (f"{rec.name}: {_periods(rec):.3g} period(s) of its {f:g} Hz drive, fewer "
+        return (f"{rec.name}: {_periods(rec):.4g} period(s) of its {f:g} Hz drive, fewer "
                 f"than {MIN_DRIVE_PERIODS:g} ({_ms(MIN_DRIVE_PERIODS / f)})")
     return None
 
