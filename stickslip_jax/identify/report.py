@@ -122,6 +122,10 @@ def fit_summary(result) -> dict:
         "recordings": recs,
         "parameters": params,
         "correlations": corr,
+        # What the data determine of the hysteresis: the loading curve at its knots
+        # (individual PI weights trade off against their neighbours).
+        "hysteresis_loading_curve": (None if getattr(result, "loading_curve", None) is None
+                                     else result.loading_curve.as_dict()),
         "steps": steps,
     }
 

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..noise import noise_sigma
 from ..simulate import _model_output, checked_batching, over_rows, plan_steps
 from ..stepping import Stepping, StepPlan
 from .dataset import Dataset
@@ -104,6 +105,18 @@ def nrmse_per_recording(q_sim, data: Dataset) -> np.ndarray:
     return np.asarray(jnp.sqrt(jnp.sum(r**2, axis=-1) / n) / jnp.asarray(data.scale))
 
 
+def recording_noise(data: Dataset) -> tuple[float, ...]:
+    """Each recording's sensor noise level [m], estimated without a model
+    (:func:`~stickslip_jax.noise.noise_sigma`), floored at 1e-6 of the largest so that
+    a noise-free recording does not take all the weight."""
+    sigma = np.array([noise_sigma(r) for r in data.recordings], dtype=float)
+    top = float(np.max(sigma, initial=0.0))
+    if not top > 0:
+        raise ValueError("no recording shows any noise: a whitened residual needs a "
+                         "noise level")
+    return tuple(float(s) for s in np.maximum(sigma, 1e-6 * top))
+
+
 def _psd(x, dt, xp):
     """Periodogram PSD [m²/Hz] (Hann window, normalised so that white noise of
     variance σ² has the level σ²·dt) at the rfft frequencies [Hz], after removing the
@@ -178,7 +191,14 @@ class TraceResiduals(eqx.Module):
     to the simulated PSD so that the high-frequency bands compare like with like), and
     per-period step lengths of the sawtooth recordings (``w_steps``). With
     ``in_metres`` the vector is only the offset-removed sample residuals [m] (padding
-    zeroed), whose noise is the sensor's white noise: the basis of the uncertainty.
+    zeroed), whose noise is the sensor's white noise. With ``whiten`` it is the same
+    divided by each recording's noise level ``noise_m`` [m] (model-free estimates,
+    :func:`~stickslip_jax.noise.noise_sigma`): the maximum-likelihood residual under
+    white Gaussian noise, the one whose Jacobian gives the covariance
+    (:mod:`.uncertainty`). The NRMSE-scaled default weights a recording by
+    1/(stroke²·samples), not by its noise, so its minimiser is a different, less
+    efficient estimator whose spread σ²(JᵀJ)⁻¹ understates: on the identification
+    fixtures that put Mp, Dp and Kp three of those standard errors from the truth.
     """
 
     pmap: ParameterMap
@@ -188,17 +208,26 @@ class TraceResiduals(eqx.Module):
     w_steps: float = eqx.field(static=True, default=0.0)
     in_metres: bool = eqx.field(static=True, default=False)
     plan: StepPlan | None = eqx.field(static=True, default=None)
+    whiten: bool = eqx.field(static=True, default=False)
+    noise_m: tuple[float, ...] | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if self.plan is None:
             raise ValueError("TraceResiduals needs a StepPlan: build it with "
                              "TraceResiduals.make (plans from the start actuator)")
+        if self.whiten and (self.noise_m is None or len(self.noise_m) != len(self.data)
+                            or not all(s > 0 for s in self.noise_m)):
+            raise ValueError("a whitened residual needs a positive noise level per "
+                             "recording (noise_m)")
 
     @classmethod
     def make(cls, pmap: ParameterMap, data: Dataset, *,
              stepping: Stepping | StepPlan | None = None, **options) -> TraceResiduals:
-        """The residual of ``data`` around ``pmap`` (``options``: the weights and
-        ``in_metres``), its internal steps planned from ``pmap.start``."""
+        """The residual of ``data`` around ``pmap`` (``options``: the weights,
+        ``in_metres`` or ``whiten``), its internal steps planned from ``pmap.start``;
+        with ``whiten`` and no ``noise_m`` the noise is estimated from each recording."""
+        if options.get("whiten") and options.get("noise_m") is None:
+            options["noise_m"] = recording_noise(data)
         return cls(pmap, data, plan=dataset_plan(pmap.start, data, stepping), **options)
 
     def simulate(self, theta):
@@ -214,8 +243,10 @@ class TraceResiduals(eqx.Module):
         n = jnp.sum(mask, axis=-1, keepdims=True)
         scale = jnp.asarray(d.scale)[:, None]
         diff = offset_removed(q - jnp.asarray(d.measured), mask)
-        if self.in_metres:  # raw sample residuals [m], for the noise-based uncertainty
+        if self.in_metres:  # raw sample residuals [m]
             return diff.reshape(-1)
+        if self.whiten:  # in units of each recording's noise: maximum likelihood
+            return (diff / jnp.asarray(self.noise_m)[:, None]).reshape(-1)
         parts = [(self.w_time * diff / (scale * jnp.sqrt(n))).reshape(-1)]
         if self.w_psd > 0:
             parts += self._psd_terms(q)
@@ -235,6 +266,10 @@ class TraceResiduals(eqx.Module):
         if self.in_metres:
             raise ValueError("nrmse_from_residual needs the scaled residual, not in_metres")
         rows = self._time_rows(r)
+        if self.whiten:
+            rows = rows * np.asarray(self.noise_m)[:, None]
+            return np.sqrt(np.sum(rows**2, axis=1) / np.sum(self.data.mask, axis=1)) \
+                / np.asarray(self.data.scale)
         return np.sqrt(np.sum(rows**2, axis=1)) / self.w_time
 
     def in_metres_rows(self, x) -> np.ndarray:
@@ -242,7 +277,12 @@ class TraceResiduals(eqx.Module):
         Jacobian ``x``: the time rows unscaled to metres, flattened as that vector."""
         d = self.data
         n = np.sum(d.mask, axis=-1)
-        factor = np.asarray(d.scale) * np.sqrt(n) / self.w_time
+        if self.in_metres:
+            factor = np.ones(len(d))
+        elif self.whiten:
+            factor = np.asarray(self.noise_m)
+        else:
+            factor = np.asarray(d.scale) * np.sqrt(n) / self.w_time
         rows = self._time_rows(x)
         rows = rows * factor.reshape((-1,) + (1,) * (rows.ndim - 1))
         return rows.reshape((-1,) + rows.shape[2:])

@@ -137,6 +137,29 @@ def _evaluated_jvp(primals, tangents):
     return value, jac @ t
 
 
+def gauss_newton_distance(residual, jac, *, rcond: float = 1e-9) -> float:
+    """Squared length of the full Gauss-Newton step from a point, in standard errors.
+
+    With residual r (N,) and Jacobian J (N, p) the step δ = −(JᵀJ)⁺Jᵀr lowers the cost
+    by Δ = δᵀJᵀJδ = gᵀ(JᵀJ)⁺g (g = Jᵀr); divided by σ̂² = rᵀr/(N − p) it is the step's
+    Mahalanobis length squared under the covariance σ̂²(JᵀJ)⁺. Directions whose
+    singular value is below ``rcond`` times the largest (undetermined ones) are left
+    out, as in the uncertainty. [-]
+    """
+    r = np.asarray(residual, dtype=float)
+    j = np.asarray(jac, dtype=float)
+    n, p = j.shape
+    sigma2 = float(r @ r) / max(n - p, 1)
+    if not (np.isfinite(sigma2) and sigma2 > 0 and np.all(np.isfinite(j))):
+        return float("inf") if not np.isfinite(sigma2) else 0.0
+    h = j.T @ j
+    g = j.T @ r
+    w, v = np.linalg.eigh(h)
+    keep = w > (rcond**2) * max(float(w[-1]), 1e-300)
+    gv = v.T @ g
+    return float(np.sum(gv[keep] ** 2 / w[keep]) / sigma2)
+
+
 def value_and_jacobian(residuals: Callable, theta):
     """``(residuals(θ), ∂residuals/∂θ)`` from forward mode, shared among threads
     (numpy arrays)."""
@@ -146,6 +169,7 @@ def value_and_jacobian(residuals: Callable, theta):
 
 def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float = 1e-4,
                         atol: float = 1e-6, ftol: float | None = None, window: int = 5,
+                        gn_tol: float | None = None,
                         scale_by_jacobian: bool = True, label: str = "fit",
                         echo: Callable[[str], None] | None = None) -> SolveResult:
     """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
@@ -166,6 +190,16 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
       so the default ``ftol = 0.1/N`` stops once the steps move the fit by well under
       a standard error; this ends fits whose poorly determined directions (e.g. a PI
       weight) keep drifting without effect, which the θ test alone would hold open.
+
+    Both tests look at the steps taken, so along a poorly conditioned direction, where
+    LM creeps, they can pass far from the optimum: on the identification fixtures they
+    stopped the joint fit with Mp, Dp and Kp 3 standard errors from where the cost is
+    least. ``gn_tol`` replaces them with a test of the point itself
+    (:func:`gauss_newton_distance`): converged when the full Gauss-Newton step from
+    the accepted point is shorter than ``sqrt(gn_tol)`` standard errors, measured in
+    the metric JᵀJ/σ̂² (σ̂² = cost/(N − p)); ``gn_tol = 0.01`` is a tenth of a standard
+    error in every direction the data determine. Then the Cauchy and ftol tests are
+    off, and a fit that gets no closer ends at ``max_steps``, not converged.
 
     ``scale_by_jacobian`` (MINPACK's and scipy's ``x_scale='jac'``): the solve runs in
     φ = d·(θ − θ0) with d the column norms of the Jacobian at the start, so every
@@ -198,7 +232,6 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         # args[2]: the value and Jacobian at φ, evaluated before the step.
         return _evaluated(phi, args[2]), None
 
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm)
     options, tags = {"jac": "fwd"}, frozenset()
     phi0 = jnp.zeros_like(theta0)
     d = jnp.ones_like(theta0)
@@ -214,7 +247,11 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         jac = jac / d[None, :]
     if ftol is None:
         ftol = 0.1 / max(int(value.size), 1)
+    if gn_tol is not None:
+        # Only the point test decides (optimistix's Cauchy test never passes at 0).
+        rtol = atol = ftol = 0.0
     args = (theta0, d, (value, jac))
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm)
     state = solver.init(fn, phi0, args, options, jax.eval_shape(lambda: value), None, tags)
     dynamic0, static = eqx.partition(state, eqx.is_array)
 
@@ -244,6 +281,14 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         cost, accepted = float(loss), int(st.num_accepted_steps)
         if accepted > len(costs):
             costs.append(cost)
+            if gn_tol is not None:  # (value, jac) are this accepted point's
+                distance = gauss_newton_distance(value, jac)
+                if echo is not None:
+                    echo(f"  {label}: Gauss-Newton step {np.sqrt(distance):.3g} SE")
+                if distance <= gn_tol:
+                    ok, message = True, (f"converged (the Gauss-Newton step is "
+                                         f"{np.sqrt(distance):.2g} standard errors)")
+                    break
         if residual_start is None:
             residual_start = np.asarray(st.f_info.residual)
         if echo is not None:
@@ -257,7 +302,8 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         if bool(st.terminate):
             ok, message = True, "converged (parameter and residual changes below tolerance)"
             break
-        if len(costs) > window and costs[-window - 1] - costs[-1] <= ftol * costs[-1]:
+        if (gn_tol is None and len(costs) > window
+                and costs[-window - 1] - costs[-1] <= ftol * costs[-1]):
             ok, message = True, (f"converged (cost stationary: fell by less than {ftol:.2g} "
                                  f"of itself over {window} accepted steps)")
             break

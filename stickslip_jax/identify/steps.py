@@ -8,7 +8,11 @@
 3. ``friction``: z_ba per drive direction (and zba_ratio on request) from the
    scanning and stepping sawtooth recordings: trace shape and phase-locked
    per-period step lengths.
-4. ``joint``: everything at once on every recording.
+4. ``joint``: everything at once on every recording, on the maximum-likelihood
+   residual (each sample in units of its recording's noise; no PSD or step-length
+   terms, which only guide the first steps from afar), converged by the Gauss-Newton
+   test (:data:`JOINT_GN_TOL`). Its Jacobian at the optimum gives the covariance
+   (:mod:`.uncertainty`).
 
 The friction law's names above are the paper's law's; any registered law takes part
 through its :class:`~stickslip_jax.model.registry.LawParameter` records: ``step``
@@ -22,6 +26,7 @@ factor, so one of them is held at a known value (by default ``Ms``).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -40,6 +45,7 @@ from .initial import (
     scale_pi_quasistatic,
     scale_to_step_mode,
 )
+from .loading_curve import LoadingCurve, loading_curve_uncertainty
 from .parameters import (
     MECHANICS,
     ParameterMap,
@@ -57,10 +63,15 @@ from .residuals import (
     numerical_error,
     simulate_dataset,
 )
-from .solve import SolveResult, solve_least_squares
+from .solve import SolveResult, solve_least_squares, value_and_jacobian
 from .uncertainty import Uncertainty, parameter_uncertainty
 
 STEPS = ("dynamics", "hysteresis", "friction", "joint")
+JOINT_GN_TOL = 0.01
+"""The joint step ends when the full Gauss-Newton step from its point is shorter than
+0.1 standard error in every direction (squared: 0.01; :func:`~.solve.solve_least_squares`
+``gn_tol``): the reported values are then the minimiser that the standard errors
+describe, to a tenth of those errors."""
 DYNAMICS = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0")
 """The dynamics step's names with the paper's law (:func:`dynamics_names` for any)."""
 
@@ -144,6 +155,9 @@ class Identification:
     numerical_error_m: np.ndarray | None = None
     """Per recording: how far the simulator's trace at the fit is from converged, RMS,
     offset removed [m] (step doubling; :func:`~.residuals.numerical_error`)."""
+    loading_curve: LoadingCurve | None = None
+    """The hysteresis as the data determine it: the initial loading curve at its knots
+    with standard errors (:mod:`.loading_curve`); None without the PI weights free."""
     undetermined: Assessment | None = None
     """Set when the recordings cannot determine a parameter of the steps asked for
     (:func:`~.informative.assess`, judged before fitting): then nothing was fitted.
@@ -279,8 +293,11 @@ def identify(
         "dynamics": (_is_step, free_dynamics() + step_breakaway(), dict(w_psd=w_psd)),
         "hysteresis": (_is_sine, ["pi_weights"], {}),
         "friction": (_is_saw, free_friction(), dict(w_steps=1.0)),
+        # The joint step is the estimate: the maximum-likelihood residual (every sample
+        # weighted by its recording's noise, no PSD or step-length terms), converged by
+        # the Gauss-Newton test, so that its Jacobian gives the covariance.
         "joint": (lambda r: True, free_dynamics() + ["pi_weights"] + free_friction(),
-                  dict(w_psd=w_psd, w_steps=1.0)),
+                  dict(whiten=True)),
     }
     reports: list[StepReport] = []
     last = None  # (residual function, solve result) of the last step that ran
@@ -304,7 +321,7 @@ def identify(
         res = TraceResiduals.make(pmap, sub, **weights)
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=name,
-                                  echo=say)
+                                  echo=say, gn_tol=JOINT_GN_TOL if name == "joint" else None)
         act = pmap.actuator(jnp.asarray(out.theta))
         # NRMSEs from the residuals the solver evaluated (no extra simulation).
         before = float(res.nrmse_from_residual(out.residual_start).mean())
@@ -318,7 +335,8 @@ def identify(
         plan = dataset_plan(act, data)
         q_sim = np.asarray(eqx.filter_jit(lambda a: simulate_dataset(a, data, plan=plan))(act))
         return Identification(act, reports, data, nrmse_per_recording(q_sim, data), None,
-                              notes, q_sim, fix, numerical_error(act, data, plan, q_sim))
+                              notes, q_sim, fix, numerical_error(act, data, plan, q_sim),
+                              undetermined=informative)
     # Final evaluation and uncertainty on every recording with every fitted quantity.
     free_all = free_dynamics() + ["pi_weights"] + free_friction() + list(extra)
     t0 = time.perf_counter()
@@ -326,18 +344,18 @@ def identify(
             and list(last[0].pmap.names) == free_all):
         # The joint step fitted exactly this: its solver already holds the Jacobian at
         # the optimum; its time rows, unscaled to metres, are the uncertainty's.
+        last_is_final = True
         say("[uncertainty] from the joint step's Jacobian at the optimum")
         res, out = last
         pmap, theta = res.pmap, jnp.asarray(out.theta)
-        jac = res.in_metres_rows(out.jacobian)
-        resid = res.in_metres_rows(out.residual)
+        jac, resid = out.jacobian, out.residual
     else:
+        last_is_final = False
         say("[uncertainty] Jacobian at the optimum...")
         final = TraceResiduals.make(ParameterMap.make(act, free_all, extra), data,
-                               in_metres=True)
+                                    whiten=True)
         pmap, theta = final.pmap, final.pmap.zeros()
-        jac = np.asarray(jax.jit(jax.jacfwd(final))(theta))
-        resid = np.asarray(final(theta))
+        resid, jac = value_and_jacobian(final, theta)
     plan = dataset_plan(pmap.actuator(theta), data)
     q_sim = np.asarray(jax.jit(lambda th: simulate_dataset(pmap.actuator(th), data, plan=plan))(
         theta))
@@ -346,10 +364,16 @@ def identify(
     # Real samples minus one fitted offset per recording.
     n_obs = int(data.mask.sum()) - len(data)
     unc = parameter_uncertainty(jac, resid, pmap.value_jacobian(theta), values, pmap.labels(),
-                                n_obs=n_obs)
+                                n_obs=n_obs, mask=data.mask)
+    # The residual's spread in metres (the whitened one's is in units of the noise).
+    metres = res.in_metres_rows(resid) if last_is_final else final.in_metres_rows(resid)
+    unc = dataclasses.replace(unc, sigma=float(np.sqrt(np.sum(metres**2) / unc.dof)))
     say(f"[uncertainty] done in {time.perf_counter() - t0:.1f} s")
+    u_top = max(float(np.max(r.voltage_V)) for r in data.recordings)
+    curve = loading_curve_uncertainty(pmap, theta, unc, u_top)
     nrmse = nrmse_per_recording(q_sim, data)
     numerical = numerical_error(pmap.actuator(theta), data, plan, q_sim)
     say(f"[numerics] simulator error at the fit (step doubling): at most "
         f"{numerical.max() * 1e9:.3g} nm RMS per recording")
-    return Identification(act, reports, data, nrmse, unc, notes, q_sim, fix, numerical)
+    return Identification(act, reports, data, nrmse, unc, notes, q_sim, fix, numerical,
+                          loading_curve=curve, undetermined=informative)
