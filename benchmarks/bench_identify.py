@@ -8,8 +8,8 @@ scipy.optimize.least_squares over the same JAX residuals.
    fresh process with the persistent compilation cache off: compilation included.
 2. Issue #3 (a), from the same start: scipy least_squares(method='trf',
    jac='2-point', x_scale='jac') fits all 42 parameters jointly on the 17 recordings
-   with this package's own joint residual (time traces, step-response log-PSD, step
-   lengths) and parameterisation (log / cumulative-log PI), over the same jitted JAX
+   with this package's own joint residual (time traces in units of each recording's
+   noise) and parameterisation (log / cumulative-log PI), over the same jitted JAX
    simulator. Its target is the same final cost: identify's fitted parameters scored
    with that residual. Timed to its first evaluation at or below that cost
    (compilation of the residual before the timer; a budget of --max-evaluations
@@ -52,7 +52,7 @@ import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.identify import identify  # noqa: E402
 from stickslip_jax.identify.dataset import Dataset  # noqa: E402
 from stickslip_jax.identify.parameters import ParameterMap  # noqa: E402
-from stickslip_jax.identify.residuals import DEFAULT_W_PSD, TraceResiduals  # noqa: E402
+from stickslip_jax.identify.residuals import TraceResiduals  # noqa: E402
 from stickslip_jax.identify.solve import solve_least_squares  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
@@ -123,10 +123,9 @@ class Recorder:
 
 
 def joint_residuals(actuator, data: Dataset) -> TraceResiduals:
-    """identify's joint-step residual (all recordings, PSD and step-length terms) with
-    the joint step's free parameters around ``actuator``."""
-    return TraceResiduals.make(ParameterMap.make(actuator, JOINT), data, w_psd=DEFAULT_W_PSD,
-                          w_steps=1.0)
+    """identify's joint-step residual (all recordings, each sample in units of its
+    recording's noise) with the joint step's free parameters around ``actuator``."""
+    return TraceResiduals.make(ParameterMap.make(actuator, JOINT), data, whiten=True)
 
 
 def from_start_comparison(fitted: dict, identify_wall_s: float, max_evaluations: int) -> dict:

@@ -72,6 +72,16 @@ JOINT_GN_TOL = 0.01
 0.1 standard error in every direction (squared: 0.01; :func:`~.solve.solve_least_squares`
 ``gn_tol``): the reported values are then the minimiser that the standard errors
 describe, to a tenth of those errors."""
+STEP_SOLVE = {
+    "hysteresis": dict(initial_damping=1e-3),
+    "friction": dict(initial_damping=1e-3),
+    "joint": dict(gn_tol=JOINT_GN_TOL, initial_damping=1e-3),
+}
+"""How each step solves (:func:`~.solve.solve_least_squares`). The hysteresis step is
+nearly linear in the PI weights and the friction step has two parameters, and the joint
+step starts at the optimum of the three: each starts with little damping. The dynamics
+step starts from a rough guess, with optimistix's default. Only the joint step, the
+estimate, ends by the Gauss-Newton test."""
 DYNAMICS = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0")
 """The dynamics step's names with the paper's law (:func:`dynamics_names` for any)."""
 
@@ -321,7 +331,7 @@ def identify(
         res = TraceResiduals.make(pmap, sub, **weights)
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=name,
-                                  echo=say, gn_tol=JOINT_GN_TOL if name == "joint" else None)
+                                  echo=say, **STEP_SOLVE.get(name, {}))
         act = pmap.actuator(jnp.asarray(out.theta))
         # NRMSEs from the residuals the solver evaluated (no extra simulation).
         before = float(res.nrmse_from_residual(out.residual_start).mean())
