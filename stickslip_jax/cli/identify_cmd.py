@@ -138,6 +138,16 @@ def identify_command(
         flag = ("" if p["determined"] else "   (not determined by these data)"
                 if p["fitted"] else "   (not fitted: held at its start value)")
         typer.echo(f"  {label:14s} {p['value']:.6g} {se} {p['unit']}{flag}")
+    curve = summary.get("hysteresis_loading_curve")
+    if curve:
+        weights = [p for lab, p in summary["parameters"].items() if lab.startswith("pi_weights[")]
+        top, se = curve["stroke_m"][-1], curve["stroke_std_error_m"][-1]
+        typer.echo(f"  hysteresis     loading curve determined at "
+                   f"{sum(curve['stroke_determined'])}/{len(curve['voltage_V'])} knots; stroke "
+                   f"at {curve['voltage_V'][-1]:.3g} V {top:.6g} ± "
+                   f"{'?' if se is None else format(se, '.3g')} m; individual PI weights "
+                   f"determined: {sum(p['determined'] for p in weights)}/{len(weights)} "
+                   f"(fit.json: hysteresis_loading_curve)")
     typer.echo(f"wrote {', '.join(str(p) for p in written.values() if p.suffix == '.json')} "
                f"and {len(written) - 2} figure(s)")
     if not result.converged:

@@ -380,7 +380,8 @@ def identify(
     unc = dataclasses.replace(unc, sigma=float(np.sqrt(np.sum(metres**2) / unc.dof)))
     say(f"[uncertainty] done in {time.perf_counter() - t0:.1f} s")
     u_top = max(float(np.max(r.voltage_V)) for r in data.recordings)
-    curve = loading_curve_uncertainty(pmap, theta, unc, u_top)
+    fitted_pi = any("pi_weights" in r.free for r in reports if r.result is not None)
+    curve = loading_curve_uncertainty(pmap, theta, unc, u_top) if fitted_pi else None
     nrmse = nrmse_per_recording(q_sim, data)
     numerical = numerical_error(pmap.actuator(theta), data, plan, q_sim)
     say(f"[numerics] simulator error at the fit (step doubling): at most "
