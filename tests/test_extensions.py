@@ -9,7 +9,7 @@ import pytest
 
 import stickslip_jax as ss
 from stickslip_jax.diagnose import CATALOGUE, NAMES
-from stickslip_jax.diagnose.run import _install_probes
+from stickslip_jax.diagnose.scores import install_probes
 from stickslip_jax.model.extensions import (
     ChainedOutput,
     Creep,
@@ -43,7 +43,7 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
     """All probes installed at once (the score test's actuator) leave q unchanged."""
     rec, u = saw
     base = ss.lu2015_slc1720()
-    probe_act, entries = _install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0],
+    probe_act, entries = install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0],
                                                            "max_slew_V_s": 1.5e6})
     assert len(entries) >= 16
     assert sum("drive" in p.label for _, p, _, _ in entries) == 2  # both drive forms
