@@ -13,7 +13,7 @@ steps plus joint, as `stickslip diagnose` does without ``--skip-identify``), whi
 the end-to-end timing of the issue (target: < 10 min per 17-recording set).
 
 ``--variants`` runs instead the independent variants of
-:data:`stickslip_jax.diagnose.concealed.VARIANTS`: other functional forms and
+:data:`stickslip_jax.testing.concealed.VARIANTS`: other functional forms and
 magnitudes of the effects (a second-order amplifier, a two-mode creep, a 2.2 kHz mode,
 an 8 µs delay, a negative load, ...) and an interferometer periodic error that no entry
 covers, simulated in memory on the same protocol (``--reduced``: the tests' 8-recording
@@ -39,8 +39,8 @@ import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.diagnose import Verdict, diagnose  # noqa: E402
-from stickslip_jax.diagnose.concealed import VARIANTS, with_variant  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
+from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 import stickslip_jax as ss
-from stickslip_jax.diagnose import Verdict, diagnose, with_effect
+from stickslip_jax.diagnose import Verdict, diagnose
 from stickslip_jax.diagnose.budget import DEFAULT_WORK_BUDGET
 from stickslip_jax.synthetic import paper_protocol, simulate_set
+from stickslip_jax.testing.concealed import with_effect
 
 ROOT = Path(__file__).resolve().parent.parent
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
@@ -182,7 +183,7 @@ def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profil
     mimic an effect: the paper's identification steps from the default profile with an
     8 µs sensor delay attached at 1 µs and free in every step."""
     from stickslip_jax.diagnose.catalogue import candidate
-    from stickslip_jax.diagnose.concealed import with_variant
+    from stickslip_jax.testing.concealed import with_variant
 
     specs = paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(100.0, 500.0),
                            step_duration_s=0.03, sine_periods=2)

@@ -167,7 +167,7 @@ def test_periodic_sensor_error_is_a_sine_of_the_position():
 def test_every_independent_variant_changes_the_trace(saw):
     """Each variant of the concealed effects is a real change of the simulated output
     (above the 1 nm noise somewhere in a 500 Hz stepping trace or its step response)."""
-    from stickslip_jax.diagnose.concealed import VARIANTS, with_variant
+    from stickslip_jax.testing.concealed import VARIANTS, with_variant
 
     rec, u = saw
     base = ss.load_params(Path(__file__).resolve().parent.parent / "fixtures" / "identification"
