@@ -43,7 +43,7 @@ def test_only_competitive_entries_are_refitted_beside_the_leader():
     # One within the share is refitted; ``top`` still caps the count.
     ranked[2].size_drop = COMPETITIVE_SHARE * 293_374.0 + 1.0
     assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth",
-                                                            "structural_mode"]
+                                                             "structural_mode"]
     assert [r.name for r in first_refits(ranked, top=2)] == ["drive_bandwidth"]
     # The score counts as well as the sizing drop.
     ranked[1].score = 0.3 * 293_374.0
@@ -62,7 +62,7 @@ def test_below_the_leader_a_sizing_that_raised_the_cost_waits_for_the_fallback()
                      ("rate_dependent_hysteresis", 5.32e5, base - 9.1794e5),
                      ("drive_bandwidth", 3.82e5, base - 5.5022e6))
     assert [r.name for r in first_refits(ranked, top=3)] == ["creep",
-                                                            "rate_dependent_hysteresis"]
+                                                             "rate_dependent_hysteresis"]
     # The leader is refitted whatever its sizing did.
     assert [r.name for r in first_refits(ranked[2:], top=3)] == ["drive_bandwidth"]
     # If the first refits explain nothing, the fallback takes it.
@@ -109,7 +109,7 @@ def test_the_fallback_refits_every_other_sized_entry_but_those_pointing_the_wron
     assert fallback_refits(ranked) == again
     ranked[1].set_aside(CandidateStatus.REFIT_FAILED, "refit not possible")
     assert [r.name for r in fallback_refits(ranked)] == ["rate_dependent_hysteresis",
-                                                          "contact_damping"]
+                                                         "contact_damping"]
 
 
 def test_an_entry_without_a_refit_is_told_why():
