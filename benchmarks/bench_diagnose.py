@@ -13,7 +13,7 @@ steps plus joint, as `stickslip diagnose` does without ``--skip-identify``), whi
 the end-to-end timing of the issue (target: < 10 min per 17-recording set).
 
 ``--variants`` runs instead the independent variants of
-:data:`stickslip_jax.diagnose.concealed.VARIANTS`: other functional forms and
+:data:`stickslip_jax.testing.concealed.VARIANTS`: other functional forms and
 magnitudes of the effects (a second-order amplifier, a two-mode creep, a 2.2 kHz mode,
 an 8 µs delay, a negative load, ...) and an interferometer periodic error that no entry
 covers, simulated in memory on the same protocol (``--reduced``: the tests' 8-recording
@@ -38,9 +38,9 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
-from stickslip_jax.diagnose import diagnose  # noqa: E402
-from stickslip_jax.diagnose.concealed import VARIANTS, with_variant  # noqa: E402
+from stickslip_jax.diagnose import Verdict, diagnose  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
+from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
@@ -80,7 +80,7 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
     named = [c.name for c in d.accepted]
     return {
         "set": getattr(folder, "name", folder), "verdict": d.verdict, "named": named,
-        "first": ("unexplained" if d.verdict == "unexplained residual" and not named
+        "first": ("unexplained" if d.verdict is Verdict.UNEXPLAINED and not named
                   else named[0] if named else "-"),
         "indistinguishable_from": d.accepted[0].indistinguishable_from if named else [],
         "nrmse_before": before, "nrmse_after": after, "noise_floor_nrmse": floor,

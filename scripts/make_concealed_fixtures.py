@@ -4,7 +4,7 @@
 
 Every set is the 17 recordings of the identification fixtures' protocol (Lu 2015 §IV,
 25 kHz, 1 nm white noise, its own noise seed) simulated from the identification truth
-plus one effect of :mod:`stickslip_jax.diagnose.concealed` (or none: the null set).
+plus one effect of :mod:`stickslip_jax.testing.concealed` (or none: the null set).
 Set folders are numbered in a shuffled order and the recordings carry the same names
 and metadata in every set, so nothing but the traces tells the effect; the answers
 are in ``answers.json`` at the top of the folder (never read by the tool).
@@ -22,8 +22,8 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
-from stickslip_jax.diagnose.concealed import CANNOT_SHOW, EFFECTS, with_effect  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
+from stickslip_jax.testing.concealed import CANNOT_SHOW, EFFECTS, with_effect  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 import stickslip_jax as ss
-from stickslip_jax.diagnose import diagnose, with_effect
+from stickslip_jax.diagnose import Verdict, diagnose
 from stickslip_jax.diagnose.budget import DEFAULT_WORK_BUDGET
 from stickslip_jax.synthetic import paper_protocol, simulate_set
+from stickslip_jax.testing.concealed import with_effect
 
 ROOT = Path(__file__).resolve().parent.parent
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
@@ -58,7 +59,7 @@ def test_names_the_hidden_effect_first(base, effect):
     recs, d = run(base, effect, fallback=False)
     assert d.accepted, f"nothing accepted for {effect}; rounds: {d.rounds}"
     assert d.accepted[0].name == effect
-    assert d.verdict == "augmented"
+    assert d.verdict is Verdict.AUGMENTED
     assert d.mismatch, "the baseline mismatch was not located"
     assert excess_removed(d, recs) >= 0.5
     assert d.accepted[0].criterion_delta < -10
@@ -68,7 +69,7 @@ def test_names_the_hidden_effect_first(base, effect):
 
 def test_null_set_adds_nothing(base):
     recs, d = run(base, "none")
-    assert d.verdict == "baseline adequate"
+    assert d.verdict is Verdict.BASELINE_ADEQUATE
     assert d.accepted == [] and d.unexplained is None
     assert d.chi2_baseline < 1.1
     np.testing.assert_allclose(d.nrmse_final, d.nrmse_baseline)
@@ -80,7 +81,7 @@ def test_null_set_adds_nothing(base):
 def test_an_effect_in_no_catalogue_is_not_named(base):
     recs, d = run(base, "uncatalogued")
     assert d.accepted == [], [c.name for c in d.accepted]
-    assert d.verdict == "unexplained residual"
+    assert d.verdict is Verdict.UNEXPLAINED
     assert d.unexplained is not None and d.unexplained["where"]
 
 
@@ -160,7 +161,7 @@ def test_work_past_the_work_budget_is_skipped_and_said(base):
                and all(f"refit {r.name}" in n for r in skipped) for n in d.notes), d.notes
     assert sorted(d.work["skipped"]) == sorted(f"refit {r.name}" for r in skipped)
     assert d.work["total"] == 1.0 and d.work["spent"] > 1.0
-    assert d.verdict == "unexplained residual"
+    assert d.verdict is Verdict.UNEXPLAINED
 
 
 def test_a_slow_or_busy_machine_skips_nothing_more(base, monkeypatch):
@@ -182,7 +183,7 @@ def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profil
     mimic an effect: the paper's identification steps from the default profile with an
     8 µs sensor delay attached at 1 µs and free in every step."""
     from stickslip_jax.diagnose.catalogue import candidate
-    from stickslip_jax.diagnose.concealed import with_variant
+    from stickslip_jax.testing.concealed import with_variant
 
     specs = paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(100.0, 500.0),
                            step_duration_s=0.03, sine_periods=2)
@@ -197,9 +198,9 @@ def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profil
     floor = np.mean([1e-9 / np.ptp(r.position_m) for r in recs])
     assert ident.nrmse.mean() < 1.3 * floor, (ident.nrmse.mean(), floor)
     # The diagnosis costs the identification's own outputs instead of simulating again.
-    from stickslip_jax.diagnose.run import _Problem
+    from stickslip_jax.diagnose.problem import Problem
     from stickslip_jax.identify.dataset import Dataset
 
-    problem = _Problem(Dataset.from_recordings(recs), np.full(len(recs), 1e-9), {}, None)
+    problem = Problem(Dataset.from_recordings(recs), np.full(len(recs), 1e-9), {}, None)
     np.testing.assert_allclose(problem.cost_of_output(ident.actuator, ident.q_sim),
                                problem.evaluate(ident.actuator)[0], rtol=1e-12)

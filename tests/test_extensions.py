@@ -9,7 +9,7 @@ import pytest
 
 import stickslip_jax as ss
 from stickslip_jax.diagnose import CATALOGUE, NAMES
-from stickslip_jax.diagnose.run import _install_probes
+from stickslip_jax.diagnose.scores import install_probes
 from stickslip_jax.model.extensions import (
     ChainedOutput,
     Creep,
@@ -43,7 +43,7 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
     """All probes installed at once (the score test's actuator) leave q unchanged."""
     rec, u = saw
     base = ss.lu2015_slc1720()
-    probe_act, entries = _install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0],
+    probe_act, entries = install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0],
                                                            "max_slew_V_s": 1.5e6})
     assert len(entries) >= 16
     assert sum("drive" in p.label for _, p, _, _ in entries) == 2  # both drive forms
@@ -167,7 +167,7 @@ def test_periodic_sensor_error_is_a_sine_of_the_position():
 def test_every_independent_variant_changes_the_trace(saw):
     """Each variant of the concealed effects is a real change of the simulated output
     (above the 1 nm noise somewhere in a 500 Hz stepping trace or its step response)."""
-    from stickslip_jax.diagnose.concealed import VARIANTS, with_variant
+    from stickslip_jax.testing.concealed import VARIANTS, with_variant
 
     rec, u = saw
     base = ss.load_params(Path(__file__).resolve().parent.parent / "fixtures" / "identification"

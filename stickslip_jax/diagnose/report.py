@@ -11,13 +11,29 @@ from ..files import atomic_write_text, check_output_path
 from ..identify.residuals import _psd
 from ..plots import subplots
 from .locate import residual_of
-from .run import ADEQUATE_CHI2, BIC_MIN, EXPLAINED_MIN, SCORE_MIN, Diagnosis
+from .policy import DEFAULT_POLICY, Policy
+from .results import Diagnosis
 
-CRITERION = ("BIC of the noise-whitened time-domain residual (noise level estimated from "
-             "each recording): criterion_delta = ΔRSS/σ² + k·ln N; accepted below "
-             f"{BIC_MIN:g} when the entry also removes at least {100 * EXPLAINED_MIN:.0f} % "
-             f"of the residual's excess over the noise or leaves mean (e/σ)² ≤ "
-             f"{ADEQUATE_CHI2:g}")
+
+def criterion_text(policy: Policy = DEFAULT_POLICY) -> str:
+    """How an entry is accepted under ``policy``, in words (``diagnosis.json``'s
+    ``criterion``)."""
+    return ("BIC of the noise-whitened time-domain residual (noise level estimated from "
+            "each recording): criterion_delta = ΔRSS/σ² + k·ln N; accepted below "
+            f"{policy.bic_min:g} when the entry also removes at least "
+            f"{100 * policy.explained_min:.0f} % of the residual's excess over the noise "
+            f"or leaves mean (e/σ)² ≤ {policy.adequate_chi2:g}")
+
+
+def score_test_text(policy: Policy = DEFAULT_POLICY) -> str:
+    """The score test and its threshold under ``policy``, in words (``diagnosis.json``'s
+    ``score_test``)."""
+    return (f"Lagrange-multiplier score of each entry's first-order signature, "
+            f"refitted when ≥ {policy.score_min:g} (χ²(1) under no effect)")
+
+
+CRITERION = criterion_text()
+"""The acceptance criterion of the default policy, in words."""
 
 
 def _finite(x):
@@ -71,9 +87,8 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "numerical_floor_nm": (None if d.numerical_error_m is None
                                else float(np.max(d.numerical_error_m)) * 1e9),
         "verdict": d.verdict,
-        "criterion": CRITERION,
-        "score_test": f"Lagrange-multiplier score of each entry's first-order signature, "
-                      f"refitted when ≥ {SCORE_MIN:g} (χ²(1) under no effect)",
+        "criterion": criterion_text(d.policy),
+        "score_test": score_test_text(d.policy),
         "candidates_by_round": rounds,
         "indistinguishable_here": d.not_testable,
         "notes": d.notes,

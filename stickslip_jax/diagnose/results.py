@@ -1,0 +1,132 @@
+"""What a diagnosis returns: the :class:`Verdict`, each entry's :class:`CandidateResult`
+with its :class:`CandidateStatus`, and the :class:`Diagnosis`."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..identify.dataset import Dataset
+from ..model.actuator import Actuator
+from .locate import RecordingResidual
+from .policy import DEFAULT_POLICY, Policy
+
+
+class Verdict(enum.StrEnum):
+    """The diagnosis's conclusion (its value is what ``diagnosis.json`` and the command
+    line print)."""
+
+    AUGMENTED = "augmented"
+    """Catalogue entries were accepted and together explain the residual."""
+    BASELINE_ADEQUATE = "baseline adequate"
+    """The baseline's residual is at the noise level, or nothing structured is left."""
+    UNEXPLAINED = "unexplained residual"
+    """A structured residual remains that no accepted entry explains."""
+
+
+class CandidateStatus(enum.StrEnum):
+    """Where an entry's round ended. An entry set aside (:data:`SET_ASIDE`) gets no
+    further refit in that round; its note says why."""
+
+    SCORED = "scored"
+    """Scored only: below the score threshold, or not among those sized."""
+    NOT_SIZED = "not sized"
+    """After an acceptance, its ``|S|`` was below the share of the excess left."""
+    SIZED = "sized"
+    """Sized, waiting for a refit."""
+    REFITTED = "refitted"
+    """Refitted (from the baseline, or after a re-identification)."""
+    SKIPPED = "skipped"
+    """Its refit or re-identification would have passed the work budget."""
+    REFIT_FAILED = "refit not possible"
+    """No valid start for its refit."""
+    NO_PROMISE = "no promise"
+    """Wrong first-order sign, and its sizing raised the cost: no refit is spent on it."""
+    NOT_REFITTED = "not refitted"
+    """Sized but not refitted: a higher-ranked refit explained the residual."""
+
+
+SET_ASIDE = frozenset({CandidateStatus.NOT_SIZED, CandidateStatus.SKIPPED,
+                       CandidateStatus.REFIT_FAILED, CandidateStatus.NO_PROMISE,
+                       CandidateStatus.NOT_REFITTED})
+"""The statuses of an entry given no further refit in its round."""
+
+
+@dataclass
+class CandidateResult:
+    """One catalogue entry's score and, if refitted, its refit."""
+
+    name: str
+    probe: str = ""
+    score: float = 0.0
+    strength: float = 0.0
+    size_drop: float = 0.0
+    refitted: bool = False
+    params: dict = field(default_factory=dict)
+    rss_before: float = np.nan
+    rss_after: float = np.nan
+    nrmse_before: float = np.nan
+    nrmse_after: float = np.nan
+    criterion_delta: float = np.nan
+    explained: float = np.nan
+    chi2_after: float = np.nan
+    accepted: bool = False
+    indistinguishable_from: list[str] = field(default_factory=list)
+    note: str = ""
+    """What happened to the entry, in words, for the reports (never read by a
+    decision: :attr:`status` is)."""
+    wall_s: float = 0.0
+    actuator: Actuator | None = None
+    status: CandidateStatus = CandidateStatus.SCORED
+    """Where its round ended (:class:`CandidateStatus`)."""
+
+    @property
+    def waiting(self) -> bool:
+        """Not refitted, and not set aside (:data:`SET_ASIDE`): a later refit pass of
+        the round may still take it."""
+        return not self.refitted and self.status not in SET_ASIDE
+
+    def set_aside(self, status: CandidateStatus, note: str) -> None:
+        """Give the entry no further refit this round, with ``note`` saying why."""
+        self.status, self.note = status, note
+
+
+@dataclass
+class Diagnosis:
+    """Result of :func:`~stickslip_jax.diagnose.run.diagnose` (see its module
+    docstring)."""
+
+    data: Dataset
+    sigmas: np.ndarray
+    baseline: Actuator
+    final: Actuator
+    nrmse_baseline: np.ndarray
+    nrmse_final: np.ndarray
+    chi2_baseline: float
+    chi2_final: float
+    analyses_baseline: list[RecordingResidual]
+    analyses_final: list[RecordingResidual]
+    mismatch: list[dict]
+    accepted: list[CandidateResult]
+    rounds: list[list[CandidateResult]]
+    not_testable: dict[str, str]
+    unexplained: dict | None
+    verdict: Verdict
+    q_baseline: np.ndarray
+    q_final: np.ndarray
+    terms: list[str]
+    timings: dict[str, float]
+    notes: list[str] = field(default_factory=list)
+    peaks_Hz: list[float] = field(default_factory=list)
+    """Peaks of the baseline's residual spectrum shared by several recordings [Hz]:
+    candidates for an unmodelled resonance (:func:`~.locate.residual_peaks`)."""
+    numerical_error_m: np.ndarray | None = None
+    """Per recording: the simulator's error at the final model, RMS, offset removed [m]
+    (step doubling, :func:`~stickslip_jax.identify.residuals.numerical_error`)."""
+    work: dict = field(default_factory=dict)
+    """The work budget: its unit, ``total`` (None: no limit), the work ``spent`` and
+    what was ``skipped`` (:meth:`.budget.Budget.record`)."""
+    policy: Policy = DEFAULT_POLICY
+    """The thresholds the diagnosis decided by (:class:`~.policy.Policy`)."""

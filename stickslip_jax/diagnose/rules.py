@@ -1,0 +1,154 @@
+"""The refit rules: which sized entries are refitted, in which order, which one is
+accepted, and why an entry got no refit.
+
+Each rule reads its thresholds from a :class:`~.policy.Policy` and takes the round's
+:class:`~.results.CandidateResult` list ``ranked`` (sized entries, best rank value
+first). In a round, the diagnosis applies them in this order (:mod:`.run`):
+
+1. :func:`first_refits`: the leader, and the competitive entries beside it (the leader
+   alone when its sizing already removed nearly all of the excess);
+2. :func:`fallback_refits`, when no first refit explains the residual (:func:`any_explains`);
+3. :func:`second_look`, when the explaining refits all stay :func:`far_from_noise`;
+4. :func:`reidentify_order`, when none explains and the identification was
+   :func:`identification_bent`;
+5. :func:`why_not_refitted` for the note of each sized entry left without a refit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .policy import DEFAULT_POLICY, Policy
+from .results import CandidateResult, CandidateStatus
+
+
+def rank_value(r: CandidateResult) -> float:
+    """What the refit order goes by: the larger of the score and the sizing's drop."""
+    return max(r.score, r.size_drop)
+
+
+def explains(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
+    """The refit removes :attr:`~.Policy.explained_min` of the excess or reaches the noise
+    (:attr:`~.Policy.adequate_chi2`)."""
+    return (bool(np.isfinite(r.explained) and r.explained >= policy.explained_min)
+            or r.chi2_after <= policy.adequate_chi2)
+
+
+def acceptable(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
+    """The refit would be accepted: ΔBIC below :attr:`~.Policy.bic_min` and it
+    :func:`explains` the residual."""
+    return r.criterion_delta < policy.bic_min and explains(r, policy)
+
+
+def leader_alone(ranked: list[CandidateResult], excess: float | None,
+                 policy: Policy = DEFAULT_POLICY) -> bool:
+    """The leader's sizing removed :attr:`~.Policy.leader_alone_share` of ``excess`` (the
+    (e/σ)² over the noise) and every other entry's less than
+    :attr:`~.Policy.leader_alone_lead` of that (``ranked``: entries that show promise,
+    best first)."""
+    if not ranked or excess is None or excess <= 0:
+        return False
+    lead = ranked[0].size_drop
+    return (lead >= policy.leader_alone_share * excess
+            and all(r.size_drop < policy.leader_alone_lead * lead for r in ranked[1:]))
+
+
+def first_refits(ranked: list[CandidateResult], top: int, excess: float | None = None,
+                 policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
+    """The entries refitted first: the leader of ``ranked`` (best first) and, among the
+    next ``top − 1``, those whose rank value reaches :attr:`~.Policy.competitive_share`
+    of its and whose sizing did not raise the cost (a sizing that ended above the
+    baseline contradicts the score's first-order promise). An entry with the wrong
+    first-order sign whose sizing did not lower the cost either (rank value ≤ 0) has
+    shown nothing a refit could build on: never first. The leader alone when its
+    sizing already removed nearly all of ``excess`` and clearly more than any other's
+    (:func:`leader_alone`). The others wait for :func:`fallback_refits`."""
+    ranked = [r for r in ranked if shows_promise(r)]
+    if not ranked:
+        return []
+    if leader_alone(ranked, excess, policy):
+        return ranked[:1]
+    lead = rank_value(ranked[0])
+    return [ranked[0]] + [r for r in ranked[1:top]
+                          if rank_value(r) >= policy.competitive_share * lead
+                          and r.size_drop >= 0]
+
+
+NO_PROMISE = ("not refitted: wrong first-order sign, and its sizing raised the cost "
+              "over the baseline's")
+"""The note of an entry that does not :func:`shows_promise`."""
+
+
+def shows_promise(r: CandidateResult) -> bool:
+    """False for an entry whose first-order sign is wrong and whose sizing raised the
+    cost (rank value ≤ 0): no refit, first or fallback, is spent on it."""
+    return rank_value(r) > 0
+
+
+def fallback_refits(ranked: list[CandidateResult]) -> list[CandidateResult]:
+    """The entries refitted when no first refit explained the residual: every sized
+    entry still :attr:`~.CandidateResult.waiting` that :func:`shows_promise`; the others
+    are set aside with a note saying why not (an entry with the wrong first-order
+    sign whose sizing raised the cost rarely ends a refit below the baseline)."""
+    waiting = [r for r in ranked if r.waiting]
+    for r in waiting:
+        if not shows_promise(r):
+            r.set_aside(CandidateStatus.NO_PROMISE, NO_PROMISE)
+    return [r for r in waiting if r.waiting]
+
+
+def any_explains(ranked: list[CandidateResult], policy: Policy = DEFAULT_POLICY) -> bool:
+    """Some refitted entry of ``ranked`` would be accepted (ΔBIC and share)."""
+    return any(r.refitted and acceptable(r, policy) for r in ranked)
+
+
+def far_from_noise(ranked: list[CandidateResult], n_obs: int,
+                   policy: Policy = DEFAULT_POLICY) -> bool:
+    """Every refit of ``ranked`` that would be accepted leaves a mean (e/σ)² above
+    :attr:`~.Policy.second_look_chi2`."""
+    chi2 = [r.chi2_after for r in ranked if r.refitted and acceptable(r, policy)]
+    return bool(chi2) and min(chi2) > policy.second_look_chi2
+
+
+def second_look(ranked: list[CandidateResult], seeded: set[str]) -> list[CandidateResult]:
+    """The entries of ``ranked`` refitted when the explaining refits are
+    :func:`far_from_noise`: the seeded ones (``seeded``: names) sized and still
+    :attr:`~.CandidateResult.waiting` that :func:`shows_promise`."""
+    return [r for r in ranked if r.name in seeded and r.waiting and shows_promise(r)]
+
+
+def identification_bent(rss_identified: float, rss_polished: float,
+                        policy: Policy = DEFAULT_POLICY) -> bool:
+    """The polish divided the identified baseline's cost by at least
+    :attr:`~.Policy.reidentify_polish_gain` (False when either is not finite)."""
+    return bool(np.isfinite(rss_identified) and np.isfinite(rss_polished)
+                and rss_identified >= policy.reidentify_polish_gain * rss_polished)
+
+
+def reidentify_order(ranked: list[CandidateResult], top: int) -> list[CandidateResult]:
+    """The entries re-identified when no refit explained the residual: the ``top`` of
+    ``ranked`` (best first) that :func:`shows_promise`. The first-order ranking is the
+    better guide here: refits from a bent baseline can rank a mimic above the right
+    entry."""
+    return [r for r in ranked if shows_promise(r)][:top]
+
+
+def why_not_refitted(r: CandidateResult, ranked: list[CandidateResult], top: int,
+                     excess: float | None = None,
+                     policy: Policy = DEFAULT_POLICY) -> str:
+    """The note of a sized entry that got no refit (``ranked``: best first; ``excess``
+    the (e/σ)² over the noise the round started from)."""
+    if not shows_promise(r):
+        return NO_PROMISE
+    promising = [x for x in ranked if shows_promise(x)]
+    if leader_alone(promising, excess, policy) and r is not promising[0]:
+        why = (f"the leader's sizing alone removed "
+               f"{100 * promising[0].size_drop / excess:.0f} % of the excess, this "
+               f"entry's {100 * r.size_drop / excess:.0f} %")
+    elif r.size_drop < 0:
+        why = "its sizing raised the cost over the baseline's"
+    elif rank_value(r) < policy.competitive_share * rank_value(ranked[0]):
+        why = f"ranked below {100 * policy.competitive_share:.0f} % of the leader"
+    else:
+        why = f"ranked below the top {top}"
+    return f"not refitted: {why}, and a higher-ranked refit explained the residual"

@@ -1,0 +1,91 @@
+"""The score tests: how well each catalogue entry's signature matches the residual.
+
+Every applicable probe of every entry is installed at zero strength. With ``J_b`` the
+Jacobian of the whitened residual ``r`` in the baseline parameters and ``c`` its
+derivative in the entry's strength at zero, ``c⊥`` the part of ``c`` the baseline
+parameters cannot mimic, the score (Lagrange-multiplier) statistic
+``S = (r·c⊥)²/|c⊥|²`` is the drop of the residual sum of squares that the entry would
+buy to first order, χ²(1) when the entry is absent. Strengths of the wrong sign
+(negative damping, negative delay) score ``−S``: they rank after every admissible one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..identify.parameters import ParameterMap, ParameterSpec
+from ..identify.solve import value_and_jacobian
+from ..model.actuator import Actuator
+from .budget import evaluation_work
+from .catalogue import Candidate, Probe
+from .problem import Problem, has_drive_stage
+
+
+def install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
+    """The current actuator with every applicable probe at zero strength, and the list
+    of ``(candidate, probe, name, spec)`` addressing each strength."""
+    entries = []
+    for cand in candidates:
+        for probe in cand.probes(act, hints):
+            try:
+                if probe.extension is not None:
+                    i = len(act.extensions)
+                    act = act.with_extension(probe.extension)
+                    spec = ParameterSpec(lambda a, i=i, f=probe.field: getattr(a.extensions[i], f),
+                                         "linear", probe.spec.scale, probe.spec.unit)
+                else:
+                    act = probe.install(act)
+                    spec = probe.spec
+            except ValueError:
+                continue  # the slot is taken by an accepted effect
+            entries.append((cand, probe, f"probe{len(entries)}", spec))
+    return act, entries
+
+
+def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
+                     candidates: Sequence[Candidate], hints: dict):
+    """Score test of every probe (see the module docstring). Returns a dict
+    ``name → (score, strength, probe, shift)`` with each candidate's best probe: the
+    Gauss-Newton strength and the baseline θ shift that goes with it."""
+    probe_act, entries = install_probes(act, candidates, hints)
+    names = base_names + [e[2] for e in entries]
+    specs = {e[2]: e[3] for e in entries}
+    pmap = ParameterMap.make(probe_act, names, specs)
+    r, jac = value_and_jacobian(problem.residuals(pmap), pmap.zeros())
+    problem.budget.charge(evaluation_work(problem.samples, jac.shape[1],
+                                          has_drive_stage(probe_act)))
+    n_base = jac.shape[1] - len(entries)
+    jb = jac[:, :n_base]
+    norms = np.linalg.norm(jb, axis=0)
+    jb_n = jb / np.where(norms > 0, norms, 1.0)
+    q, _ = np.linalg.qr(jb_n)
+    out: dict[str, tuple[float, float, Probe, np.ndarray]] = {}
+    for k, (cand, probe, _, spec) in enumerate(entries):
+        c = jac[:, n_base + k]
+        c_perp = c - q @ (q.T @ c)
+        cc = float(c_perp @ c_perp)
+        if cc <= 1e-12 * max(float(c @ c), 1e-300):
+            score, beta = 0.0, 0.0
+        else:
+            beta = -float(r @ c_perp) / cc
+            score = float(r @ c_perp) ** 2 / cc
+            if probe.sign > 0 and beta < 0:
+                # Wrong sign to first order: a negative score, so that the entry ranks
+                # after every admissible one (a large effect can still turn the sign
+                # around; see diagnose's ``top``).
+                score, beta = -score, -beta
+        # The baseline's share of the Gauss-Newton step that goes with the strength
+        # β: an effect the baseline partly mimics (a rate lag is a creep plus a PI
+        # slope change) only pays once the baseline gives back what it absorbed.
+        shift = -np.linalg.lstsq(jb_n, r + c * beta, rcond=1e-10)[0] / np.where(
+            norms > 0, norms, 1.0)
+        # Each entry's best probe: the highest admissible score, or, when every probe
+        # of the entry has the wrong first-order sign, the strongest of them (the one
+        # worth sizing in case the sign turns around).
+        if cand.name not in out or (score >= 0, abs(score)) > (out[cand.name][0] >= 0,
+                                                                abs(out[cand.name][0])):
+            out[cand.name] = (score, beta * spec.scale, probe, shift)
+    return out
+

@@ -1,0 +1,164 @@
+"""Sizing: which scored entries are sized, and the sizing itself.
+
+An entry is sized with the baseline held: its own 1-3 parameters fitted
+(:data:`SIZE_STEPS` steps at most), cheap. It starts from the Gauss-Newton step of the
+score test, the entry at its strength and the baseline moved by its share of the step
+(the best of 1, 1/2, 1/4, 1/8 of it; :func:`first_order_start`); an entry with seeds
+whose first-order sign is wrong starts from its cheapest seed (:func:`best_seed`). In
+round one it is sized on the baseline before its polish too, and the better sizing is
+kept (:func:`size_best`). What the sizing removed, ``size_drop``, ranks the refits
+with the score (:func:`~.rules.rank_value`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..identify.parameters import ParameterMap
+from ..model.actuator import Actuator
+from .catalogue import Candidate, Probe
+from .policy import DEFAULT_POLICY, Policy
+from .problem import Problem
+from .results import CandidateResult, CandidateStatus
+
+SIZE_STEPS = 15
+"""Levenberg-Marquardt steps of a sizing at most (a few parameters, the baseline
+held)."""
+
+
+def first_order_start(problem: Problem, act: Actuator, base_names: list[str],
+                      cand: Candidate, strength: float, probe: Probe, shift: np.ndarray):
+    """The entry attached at a fraction of its Gauss-Newton strength, with the baseline
+    moved by the same fraction of its share of the step: the fraction (1, 1/2, 1/4, 1/8)
+    whose start costs least (the linearised step overshoots for large effects)."""
+    pmap = ParameterMap.make(act, base_names)
+    # A linearised shift beyond a factor e of any baseline quantity (θ is logarithmic
+    # for them) is extrapolation, not a first-order move: cap it.
+    shift = np.clip(shift, -1.0, 1.0)
+    best = None
+    for frac in (1.0, 0.5, 0.25, 0.125):
+        moved = pmap.actuator(jnp.asarray(frac * shift))
+        try:
+            start, specs = cand.attach(moved, frac * strength, probe)
+            ParameterMap.make(start, base_names)  # the refit must be able to start here
+            cost = problem.evaluate(start)[0]
+        except ValueError:  # e.g. the moved PI loop folded (a partial sum below zero)
+            continue
+        if np.isfinite(cost) and (best is None or cost < best[0]):
+            best = (cost, start, specs)
+    if best is None:
+        start, specs = cand.attach(act, 0.25 * strength, probe)
+        return start, specs
+    return best[1], best[2]
+
+
+def best_seed(problem: Problem, act: Actuator, base_names: list[str], cand: Candidate):
+    """``(cost, start, specs)`` of the entry's cheapest seed on ``act``, or None."""
+    best = None
+    for start, specs in cand.seeds(act, {}):
+        try:
+            ParameterMap.make(start, base_names)
+            cost = problem.evaluate(start)[0]
+        except ValueError:
+            continue
+        if np.isfinite(cost) and (best is None or cost < best[0]):
+            best = (cost, start, specs)
+    return best
+
+
+def size_best(problem: Problem, name: str, starts):
+    """Size an entry from each ``(tag, start, specs)`` of ``starts`` (its own parameters,
+    the baseline held): ``(cost, sized actuator, specs)`` of the lowest, or None."""
+    best = None
+    for tag, start, specs in starts:
+        label = f"size {name} ({tag})" if tag else f"size {name}"
+        sized, cost, _ = problem.fit(start, list(specs), specs, label=label,
+                                     max_steps=SIZE_STEPS)
+        if best is None or cost < best[0]:
+            best = (cost, sized, specs)
+    return best
+
+
+def worth_sizing_after_acceptance(chosen: list[CandidateResult], excess: float,
+                                  policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
+    """Entries of ``chosen`` whose |score| reaches :attr:`~.Policy.later_score_share` of
+    ``excess`` (the (e/σ)² over the noise left by the accepted entries); the others
+    are set aside with a note saying why they were not sized."""
+    floor = policy.later_score_share * max(excess, 0.0)
+    for r in chosen:
+        if abs(r.score) < floor:
+            r.set_aside(CandidateStatus.NOT_SIZED,
+                        f"not sized: |score| {abs(r.score):.3g} below "
+                        f"{100 * policy.later_score_share:.0f} % of the excess left "
+                        f"({excess:.3g})")
+    return [r for r in chosen if abs(r.score) >= floor]
+
+
+def chosen_for_sizing(results: list[CandidateResult], seeded: set[str], size_at_most: int,
+                      excess_left: float | None, say: Callable[[str], None],
+                      policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
+    """The entries of ``results`` to size: admissible signs first, then by |score|, the
+    first ``size_at_most``; and any entry whose first-order sign is wrong but whose
+    |score| reaches :attr:`~.Policy.wrong_sign_share` of the best (a large effect the
+    polished baseline bent itself to mimic can flip the first-order sign); and every
+    entry with seeds (``seeded``: names), whose cost is rugged in a nonlinear
+    parameter, so that a score taken at zero effect says little about an effect at a
+    distance. After an acceptance (``excess_left``: the (e/σ)² over the noise the
+    accepted entries left; None in round one) only those
+    :func:`worth_sizing_after_acceptance`. Entries below :attr:`~.Policy.score_min` are
+    chosen but not sized (:func:`size_entries`)."""
+    order = sorted(results, key=lambda r: (r.score < 0, -abs(r.score)))
+    best_score = max((abs(r.score) for r in results), default=0.0)
+    chosen = order[:size_at_most] + [
+        r for r in order[size_at_most:]
+        if (r.score < 0 and abs(r.score) >= policy.wrong_sign_share * best_score)
+        or r.name in seeded]
+    if excess_left is not None:
+        chosen = worth_sizing_after_acceptance(chosen, excess_left, policy)
+        if not chosen:
+            say(f"[score] no entry scores {100 * policy.later_score_share:.0f} % of the "
+                f"excess the accepted entries left ({excess_left:.3g}): stop")
+    return chosen
+
+
+def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
+                 pool: Sequence[Candidate], scores: dict, act: Actuator,
+                 unpolished: Actuator, rss: float, base_names: list[str],
+                 seeded: set[str], *, round_one: bool,
+                 policy: Policy = DEFAULT_POLICY) -> dict[str, tuple[Actuator, dict]]:
+    """Size each entry of ``chosen`` whose |score| reaches :attr:`~.Policy.score_min`,
+    from the round's optimum ``act`` (cost ``rss``) and, in round one, from
+    ``unpolished`` too (the polish can bend the baseline to mimic part of an effect, a
+    local optimum the joint refit may not leave); the better sizing is kept. Sets each
+    sized entry's ``size_drop`` and status; returns ``name → (sized actuator, specs)``
+    (``scores``: :func:`~.scores.score_candidates`'s)."""
+    sized = {}
+    for res in chosen:
+        if abs(res.score) < policy.score_min:
+            continue
+        cand = next(c for c in pool if c.name == res.name)
+        _, strength, probe, shift = scores[res.name]
+        before_polish = round_one and unpolished is not act
+        if res.name in seeded and res.score < 0:
+            # The linearisation points the wrong way: start from the cheapest seed.
+            bases = [(act, "seed")] + ([(unpolished, "seed, unpolished")]
+                                       if before_polish else [])
+            starts = [(tag, *seeded_start[1:]) for on, tag in bases
+                      if (seeded_start := best_seed(problem, on, base_names, cand))]
+        else:
+            starts = [("", *first_order_start(problem, act, base_names, cand,
+                                              strength, probe, shift))]
+            if before_polish:
+                starts.append(("unpolished",
+                               *cand.attach(unpolished, 0.25 * strength, probe)))
+        best_sized = size_best(problem, cand.name, starts)
+        if best_sized is None:
+            continue
+        rss_size, start, specs = best_sized
+        res.size_drop = rss - rss_size
+        res.status = CandidateStatus.SIZED
+        sized[res.name] = (start, specs)
+    return sized
