@@ -31,9 +31,10 @@ protocol (42 500 padded samples, 42 baseline parameters: one evaluation is
 42 500 · (1 + 0.1 · 42) ≈ 2.2e5 sample-evaluations). There a Jacobian evaluation of
 the baseline took 1.15 s (:class:`~stickslip_jax.identify.solve.ColumnSplitJacobian`)
 and a 25-step refit (26 evaluations) 20-45 s, so 540 s held about 450 such
-evaluations ≈ 1.0e8. A rough tally of the set that ended at the old budget (set_10
-from the profile, 539 s: identification, a 75-step polish, scores and sizings, four
-refits, one with a drive stage, three re-identifications, the learned correction)
+evaluations ≈ 1.0e8. A rough tally of the concealed set that ended at the old
+budget (the uncatalogued one, from the profile, 539 s: identification, a 75-step
+polish, scores and sizings, four refits, one with a drive stage, three
+re-identifications, the learned correction)
 comes to the same 450-500 evaluations. Compilation is not counted (it took part of
 those 540 s), so a run that spends the whole default may take somewhat longer than
 nine minutes on such a machine; it takes the same decisions on every machine.
@@ -57,8 +58,8 @@ column; rounded up."""
 DRIVE_STAGE_FACTOR = 2.5
 """How much more a sample costs when the model has a drive (input) stage [-]: the
 hysteresis is then evaluated at every RK4 stage instead of once per sample interval.
-Measured, same run: refits of 102 s against 30-45 s (set_10), 92 against 22-38 s (a
-two-pole amplifier), 108 against 20-31 s (another)."""
+Measured, same run: refits of 102 s against 30-45 s (the uncatalogued concealed
+set), 92 against 22-38 s (a two-pole amplifier), 108 against 20-31 s (another)."""
 REIDENTIFY_EVALUATIONS = 35
 """Work assumed for a re-identification's staged steps before they run, in evaluations
 of the whole data set at the refit's size [-]: they took 20-40 s on the paper's

@@ -181,16 +181,8 @@ class Policy:
 DEFAULT_POLICY = Policy()
 """The default :class:`Policy`."""
 
-# The former module constants of ``diagnose/run.py``, as aliases of the defaults.
-SCORE_MIN = DEFAULT_POLICY.score_min
-BIC_MIN = DEFAULT_POLICY.bic_min
-EXPLAINED_MIN = DEFAULT_POLICY.explained_min
-ADEQUATE_CHI2 = DEFAULT_POLICY.adequate_chi2
+# Defaults the rule tests name (read them from a Policy elsewhere).
 SECOND_LOOK_CHI2 = DEFAULT_POLICY.second_look_chi2
-REIDENTIFY_POLISH_GAIN = DEFAULT_POLICY.reidentify_polish_gain
-SIZE_AT_MOST = DEFAULT_POLICY.size_at_most
-WRONG_SIGN_SHARE = DEFAULT_POLICY.wrong_sign_share
-INDISTINGUISHABLE = DEFAULT_POLICY.indistinguishable
 COMPETITIVE_SHARE = DEFAULT_POLICY.competitive_share
 LEADER_ALONE_SHARE = DEFAULT_POLICY.leader_alone_share
 LEADER_ALONE_LEAD = DEFAULT_POLICY.leader_alone_lead

@@ -354,18 +354,16 @@ def identify(
             and list(last[0].pmap.names) == free_all):
         # The joint step fitted exactly this: its solver already holds the Jacobian at
         # the optimum; its time rows, unscaled to metres, are the uncertainty's.
-        last_is_final = True
         say("[uncertainty] from the joint step's Jacobian at the optimum")
         res, out = last
         pmap, theta = res.pmap, jnp.asarray(out.theta)
         jac, resid = out.jacobian, out.residual
     else:
-        last_is_final = False
         say("[uncertainty] Jacobian at the optimum...")
-        final = TraceResiduals.make(ParameterMap.make(act, free_all, extra), data,
-                                    whiten=True)
-        pmap, theta = final.pmap, final.pmap.zeros()
-        resid, jac = value_and_jacobian(final, theta)
+        res = TraceResiduals.make(ParameterMap.make(act, free_all, extra), data,
+                                  whiten=True)
+        pmap, theta = res.pmap, res.pmap.zeros()
+        resid, jac = value_and_jacobian(res, theta)
     plan = dataset_plan(pmap.actuator(theta), data)
     q_sim = np.asarray(jax.jit(lambda th: simulate_dataset(pmap.actuator(th), data, plan=plan))(
         theta))
@@ -376,7 +374,7 @@ def identify(
     unc = parameter_uncertainty(jac, resid, pmap.value_jacobian(theta), values, pmap.labels(),
                                 n_obs=n_obs, mask=data.mask)
     # The residual's spread in metres (the whitened one's is in units of the noise).
-    metres = res.in_metres_rows(resid) if last_is_final else final.in_metres_rows(resid)
+    metres = res.in_metres_rows(resid)
     unc = dataclasses.replace(unc, sigma=float(np.sqrt(np.sum(metres**2) / unc.dof)))
     say(f"[uncertainty] done in {time.perf_counter() - t0:.1f} s")
     u_top = max(float(np.max(r.voltage_V)) for r in data.recordings)
