@@ -15,10 +15,10 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
+from stickslip_jax.testing.truth import identification_truth  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
@@ -26,16 +26,9 @@ OUT = Path(__file__).resolve().parent.parent / "fixtures" / "identification"
 
 
 def truth_params() -> dict:
-    """The documented truth of the identification fixtures (docs/model.md names, SI)."""
-    p = ss.params_from_actuator(ss.lu2015_slc1720())
-    r = np.asarray(p["pi_thresholds"])
-    tail = np.exp(-r[1:] / 12.0)
-    p.update(
-        Mp=2.8e-4, Dp=14.0, Kp=2.4e6, Ms=0.0247, Ds=70.0, rho0=3.2e5,
-        z_ba=0.42e-6, z_ba_forward=0.42e-6, z_ba_backward=0.48e-6, zba_ratio=0.667,
-        pi_weights=[1.9e-8] + list(0.6e-8 * tail / tail.sum()),
-    )
-    return p
+    """The documented truth of the identification fixtures (docs/model.md names, SI):
+    :func:`stickslip_jax.testing.truth.identification_truth`."""
+    return identification_truth()
 
 
 def main() -> None:
