@@ -51,13 +51,22 @@ CONCEALED = ROOT / "fixtures" / "concealed"
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
 
 
+REDUCED_SETTINGS = dict(max_rounds=1, top=2, max_steps=20, size_at_most=3)
+"""``--reduced``: the tests' diagnose settings (fewer, shorter refits)."""
+
+
+def protocol(reduced: bool):
+    """The 17 drives of the fixtures, or (``reduced``) the 8-recording protocol of
+    tests/test_diagnose.py."""
+    if reduced:
+        return paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(100.0, 500.0),
+                              step_duration_s=0.03, sine_periods=2)
+    return paper_protocol()
+
+
 def variant_recordings(variant: str, *, reduced: bool, seed: int):
     """The protocol simulated from the truth with one variant effect, 1 nm noise."""
-    if reduced:  # the 8-recording protocol of tests/test_diagnose.py
-        specs = paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(100.0, 500.0),
-                               step_duration_s=0.03, sine_periods=2)
-    else:
-        specs = paper_protocol()
+    specs = protocol(reduced)
     act = with_variant(ss.load_params(TRUTH), variant)
     return simulate_set(act, specs, noise_m=1e-9, seed=seed)
 
@@ -122,8 +131,7 @@ def main() -> None:
         unknown = [v for v in chosen if v not in VARIANTS]
         if unknown:
             sys.exit(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
-    # The tests' settings on the reduced protocol (fewer, shorter refits).
-    kw = dict(max_rounds=1, top=2, max_steps=20, size_at_most=3) if args.reduced else {}
+    kw = REDUCED_SETTINGS if args.reduced else {}
     rows = []
     for name in chosen:
         print(f"== {name}", flush=True)

@@ -1,0 +1,289 @@
+"""Diagnosis on a split of random sets (issue #27): confusion matrix, null false
+positives, wrong names, right name first, detection against effect size, time.
+
+    .venv/bin/python benchmarks/bench_diagnose_split.py --split dev --sets 0,1 \\
+        --json out/split_dev.json --figure out/split_dev.png
+    .venv/bin/python benchmarks/bench_diagnose_split.py --split test \\
+        --json out/split_test.json --figure out/split_test.png     # the frozen split
+
+Each set is drawn by :func:`stickslip_jax.testing.random_sets.draw_set` from the
+split's seed and its index (``dev``: develop on it; ``test``: frozen, run it once the
+policy is fixed and report it, never tune on it) and simulated in memory: the 17
+recordings of the protocol (``--reduced``: the tests' 8 recordings and diagnose
+settings, a smoke run) from a random truth with one hidden effect or none, white noise
+0.5-2 nm, integrated 16x finer than fits use. :func:`diagnose` runs on it as
+``stickslip diagnose DIR --fix Ms=0.0247`` does: the baseline identified from the
+default profile (dynamics, hysteresis, friction, joint), default settings and work
+budget (``bench_diagnose.run_set``).
+
+Per set (``--json``, appended as each set ends; sets already in the file are skipped,
+so an interrupted run resumes): the hidden effect, its form and whether the catalogue
+fits that form, strength, effect size (nm, over the noise, and the part the baseline
+cannot absorb to first order), noise, verdict, the entries accepted, NRMSE before and
+after, the share of the NRMSE excess over the noise floor removed, wall time. The
+summary (printed and in the JSON): the confusion matrix (hidden effect × first entry
+named, or the verdict when none is), null false positives, the wrong-name rate, the
+right-name-first rate among the sets hiding a catalogue entry, the detection rate
+against effect size over noise, time per set; ``--figure`` draws the detection rate
+and the confusion matrix.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+import stickslip_jax as ss  # noqa: E402
+from stickslip_jax.diagnose import NAMES, Verdict  # noqa: E402
+from stickslip_jax.testing import random_sets as rs  # noqa: E402
+
+ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+
+# The concealed-set benchmark's diagnose run and protocols, shared.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_diagnose import REDUCED_SETTINGS, protocol, run_set  # noqa: E402
+
+SEEDS = {"dev": rs.DEV_SEED, "test": rs.TEST_SEED}
+HIDDEN = (*rs.EFFECTS, "none")
+"""Rows of the confusion matrix."""
+UNEXPLAINED, ADEQUATE = "unexplained", "adequate"
+COLUMNS = (*[n for n in NAMES if n in rs.EFFECTS], UNEXPLAINED, ADEQUATE)
+"""Columns: the entry named first, else the verdict (unexplained residual, baseline
+adequate)."""
+BINS = (0.0, 0.3, 1.0, 3.0, 10.0, 30.0, np.inf)
+"""Effect size over noise bins of the detection rate."""
+
+
+def outcome(row: dict) -> str:
+    """The confusion matrix column of a row."""
+    if row["named"]:
+        return row["named"][0]
+    return UNEXPLAINED if row["verdict"] == Verdict.UNEXPLAINED else ADEQUATE
+
+
+def run_one(spec: rs.SetSpec, reduced: bool) -> dict:
+    """Simulate set ``spec``, diagnose it, and the row of the JSON."""
+    drives = protocol(reduced)
+    t0 = time.perf_counter()
+    recs = rs.make_recordings(spec, drives)
+    size = rs.effect_size(spec, drives, beyond_baseline=True)
+    simulate_s = time.perf_counter() - t0
+    row = run_set(spec.name, from_profile=True, recs=recs,
+                  **({"max_rounds": 3} | (REDUCED_SETTINGS if reduced else {})))
+    row.update(
+        index=spec.index, hidden=spec.effect, form=spec.form,
+        catalogue_form=spec.catalogue_form, strength=spec.strength,
+        strength_name=spec.strength_name, strength_unit=spec.strength_unit,
+        others=spec.others, noise_nm=1e9 * spec.noise_m,
+        effect_nm=1e9 * size["rms_m"], effect_to_noise=size["to_noise"],
+        beyond_baseline_nm=1e9 * size["beyond_baseline_m"],
+        beyond_to_noise=size["beyond_to_noise"], simulate_s=simulate_s,
+        truth_factors=spec.truth_factors)
+    row["outcome"] = outcome(row)
+    row["right_first"] = bool(row["named"]) and row["named"][0] == spec.effect
+    row["wrong_first"] = bool(row["named"]) and row["named"][0] != spec.effect
+    row["wrong_any"] = any(n != spec.effect for n in row["named"])
+    return row
+
+
+# ---- summaries -------------------------------------------------------------------------
+def confusion(rows: list[dict]) -> dict[str, dict[str, int]]:
+    """``hidden → outcome → count`` over :data:`HIDDEN` × :data:`COLUMNS`."""
+    m = {h: dict.fromkeys(COLUMNS, 0) for h in HIDDEN}
+    for r in rows:
+        m[r["hidden"]][r["outcome"]] += 1
+    return m
+
+
+def confusion_markdown(m: dict[str, dict[str, int]]) -> str:
+    """The confusion matrix as a markdown table (rows with no set left out)."""
+    head = "| hidden \\ named | " + " | ".join(COLUMNS) + " |"
+    lines = [head, "|---" * (len(COLUMNS) + 1) + "|"]
+    for h in HIDDEN:
+        if sum(m[h].values()):
+            lines.append(f"| {h} | " + " | ".join(str(m[h][c] or "") for c in COLUMNS) + " |")
+    return "\n".join(lines)
+
+
+def _rate(hits: int, n: int) -> dict:
+    return {"count": hits, "of": n, "rate": hits / n if n else None}
+
+
+def detection_bins(rows: list[dict]) -> list[dict]:
+    """Per bin of effect size over noise: of the sets hiding a catalogue entry, the
+    share named right first; of all non-null sets, the share flagged (anything but
+    "baseline adequate")."""
+    out = []
+    for lo, hi in zip(BINS[:-1], BINS[1:], strict=True):
+        inside = [r for r in rows if r["hidden"] != "none" and lo <= r["effect_to_noise"] < hi]
+        cat = [r for r in inside if r["hidden"] != "uncatalogued"]
+        out.append({"bin": [lo, hi], "right_first": _rate(sum(r["right_first"] for r in cat),
+                                                           len(cat)),
+                    "flagged": _rate(sum(r["outcome"] != ADEQUATE for r in inside),
+                                     len(inside))})
+    return out
+
+
+def summary(rows: list[dict]) -> dict:
+    null = [r for r in rows if r["hidden"] == "none"]
+    cat = [r for r in rows if r["hidden"] not in ("none", "uncatalogued")]
+    unc = [r for r in rows if r["hidden"] == "uncatalogued"]
+    named = [r for r in rows if r["named"]]
+    walls = [r["wall_s"] for r in rows]
+    m = confusion(rows)
+    return {
+        "sets": len(rows),
+        "null_false_positives": _rate(sum(bool(r["named"]) for r in null), len(null)),
+        "null_unexplained": _rate(sum(r["outcome"] == UNEXPLAINED for r in null), len(null)),
+        "wrong_name_first": _rate(sum(r["wrong_first"] for r in rows), len(rows)),
+        "wrong_name_any": _rate(sum(r["wrong_any"] for r in rows), len(rows)),
+        "right_first": _rate(sum(r["right_first"] for r in cat), len(cat)),
+        "right_first_catalogue_form": _rate(
+            sum(r["right_first"] for r in cat if r["catalogue_form"]),
+            sum(r["catalogue_form"] for r in cat)),
+        "right_first_other_form": _rate(
+            sum(r["right_first"] for r in cat if not r["catalogue_form"]),
+            sum(not r["catalogue_form"] for r in cat)),
+        "uncatalogued_unexplained": _rate(sum(r["outcome"] == UNEXPLAINED for r in unc),
+                                          len(unc)),
+        "excess_halved_where_named": _rate(
+            sum((r["excess_removed"] or 0.0) >= 0.5 for r in named), len(named)),
+        "detection_vs_effect_to_noise": detection_bins(rows),
+        "wall_s": {"mean": float(np.mean(walls)), "median": float(np.median(walls)),
+                   "max": float(np.max(walls))} if walls else None,
+        "confusion": m,
+        "confusion_markdown": confusion_markdown(m),
+    }
+
+
+def _pct(r: dict) -> str:
+    return "-" if r["rate"] is None else f"{r['count']}/{r['of']} ({100 * r['rate']:.0f} %)"
+
+
+def print_summary(rows: list[dict], s: dict) -> None:
+    print("\n| set | hidden | form | cat. form | effect/noise (beyond) | noise | verdict | "
+          "named | NRMSE before → after | excess removed | wall |")
+    print("|---" * 11 + "|")
+    for r in sorted(rows, key=lambda r: r["index"]):
+        ex = "" if r["excess_removed"] is None else f"{100 * r['excess_removed']:.0f} %"
+        print(f"| {r['set']} | {r['hidden']} | {r['form']} | {'yes' if r['catalogue_form'] else ''}"
+              f" | {r['effect_to_noise']:.2g} ({r['beyond_to_noise']:.2g}) | "
+              f"{r['noise_nm']:.2f} nm | {r['verdict']} | {', '.join(r['named']) or '-'} | "
+              f"{100 * r['nrmse_before']:.4f} → {100 * r['nrmse_after']:.4f} % | {ex} | "
+              f"{r['wall_s']:.0f} s |")
+    print("\n" + s["confusion_markdown"] + "\n")
+    for k in ("null_false_positives", "null_unexplained", "wrong_name_first", "wrong_name_any",
+              "right_first", "right_first_catalogue_form", "right_first_other_form",
+              "uncatalogued_unexplained", "excess_halved_where_named"):
+        print(f"- {k.replace('_', ' ')}: {_pct(s[k])}")
+    print("- detection against effect size / noise (right first | flagged):")
+    for b in s["detection_vs_effect_to_noise"]:
+        print(f"  [{b['bin'][0]:g}, {b['bin'][1]:g}): {_pct(b['right_first'])} | "
+              f"{_pct(b['flagged'])}")
+    if s["wall_s"]:
+        w = s["wall_s"]
+        print(f"- diagnose wall time per set: mean {w['mean']:.0f} s, median "
+              f"{w['median']:.0f} s, max {w['max']:.0f} s")
+
+
+def figure(rows: list[dict], s: dict, path: Path) -> None:
+    """Detection against effect size over noise, and the confusion matrix."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 5), gridspec_kw={"width_ratios": [1, 1.3]})
+    rng = np.random.default_rng(0)  # jitter of the points, for legibility only
+    for cat_form, marker in ((True, "o"), (False, "^")):
+        pts = [r for r in rows if r["hidden"] not in ("none", "uncatalogued")
+               and r["catalogue_form"] == cat_form]
+        a.scatter([r["effect_to_noise"] for r in pts],
+                  [float(r["right_first"]) + rng.uniform(-0.04, 0.04) for r in pts],
+                  marker=marker, alpha=0.6,
+                  label=f"{'catalogue' if cat_form else 'other'} form (1: right first)")
+    centres, right, flagged = [], [], []
+    for bn in s["detection_vs_effect_to_noise"]:
+        lo, hi = bn["bin"]
+        centres.append(np.sqrt(max(lo, 0.1) * (hi if np.isfinite(hi) else 100.0)))
+        right.append(np.nan if bn["right_first"]["rate"] is None else bn["right_first"]["rate"])
+        flagged.append(np.nan if bn["flagged"]["rate"] is None else bn["flagged"]["rate"])
+    a.plot(centres, right, "k-", label="rate named right first (bins)")
+    a.plot(centres, flagged, "k--", label="rate flagged at all (bins)")
+    a.set_xscale("log")
+    a.set_xlabel("effect size / noise (RMS, offset removed)")
+    a.set_ylabel("rate")
+    a.set_ylim(-0.1, 1.1)
+    a.legend(fontsize=8, loc="center right")
+    a.set_title("detection against effect size")
+    m = s["confusion"]
+    hidden = [h for h in HIDDEN if sum(m[h].values())]
+    grid = np.array([[m[h][c] for c in COLUMNS] for h in hidden])
+    b.imshow(grid, cmap="Blues", aspect="auto")
+    for i in range(grid.shape[0]):
+        for j in range(grid.shape[1]):
+            if grid[i, j]:
+                b.text(j, i, str(grid[i, j]), ha="center", va="center")
+    b.set_xticks(range(len(COLUMNS)), COLUMNS, rotation=60, ha="right", fontsize=8)
+    b.set_yticks(range(len(hidden)), hidden, fontsize=8)
+    b.set_xlabel("named first (or verdict)")
+    b.set_title("confusion matrix")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    print(f"wrote {path}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--split", choices=sorted(SEEDS), required=True)
+    ap.add_argument("--sets", default="", help="comma-separated set indices (default 0 … n−1)")
+    ap.add_argument("--n", type=int, default=rs.SET_SIZE, help="sets in the split")
+    ap.add_argument("--reduced", action="store_true",
+                    help="the tests' 8-recording protocol and settings (a smoke run)")
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--figure", type=Path, default=None)
+    args = ap.parse_args()
+    seed = SEEDS[args.split]
+    chosen = [int(s) for s in args.sets.split(",") if s] or list(range(args.n))
+    meta = {"split": args.split, "seed": seed, "reduced": args.reduced}
+    rows: list[dict] = []
+    if args.json and args.json.exists():
+        old = json.loads(args.json.read_text())
+        if {k: old.get(k) for k in meta} != meta:
+            sys.exit(f"{args.json} holds another run ({ {k: old.get(k) for k in meta} }); "
+                     f"give another --json")
+        rows = old["rows"]
+    done = {r["index"] for r in rows}
+    for i in chosen:
+        if i in done:
+            print(f"== set_{i:02d}: in {args.json} already", flush=True)
+            continue
+        spec = rs.draw_set(seed, i)
+        print(f"== {spec.name}", flush=True)
+        rows.append(run_one(spec, args.reduced))
+        r = rows[-1]
+        print(json.dumps({k: r[k] for k in ("set", "hidden", "form", "effect_to_noise",
+                                            "verdict", "named", "wall_s", "simulate_s")},
+                         default=str), flush=True)
+        if args.json:  # after every set: a later crash keeps the rows done
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps({**meta, "jax": jax.__version__, "rows": rows,
+                                             "summary": summary(rows)}, indent=1,
+                                            default=float))
+    rows = [r for r in rows if r["index"] in chosen] if args.sets else rows
+    s = summary(rows)
+    print_summary(rows, s)
+    if args.figure:
+        figure(rows, s, args.figure)
+
+
+if __name__ == "__main__":
+    main()
