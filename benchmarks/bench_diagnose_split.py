@@ -218,6 +218,7 @@ def figure(rows: list[dict], s: dict, path: Path) -> None:
     a.plot(centres, right, "k-", label="rate named right first (bins)")
     a.plot(centres, flagged, "k--", label="rate flagged at all (bins)")
     a.set_xscale("log")
+    a.set_xlim(0.05, 200.0)  # the same axis on every run, however few the sets
     a.set_xlabel("effect size / noise (RMS, offset removed)")
     a.set_ylabel("rate")
     a.set_ylim(-0.1, 1.1)
