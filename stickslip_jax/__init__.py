@@ -12,7 +12,7 @@ does both for you)::
 """
 
 from .adjoint import AbstractAdjoint, CheckpointedScan, ForwardSensitivities
-from .diagnose import CATALOGUE, Diagnosis, diagnose
+from .diagnose import CATALOGUE, Diagnosis, Policy, Verdict, diagnose
 from .drive_inference import DriveInfo, infer_drive
 from .files import InputOverwriteError, OutputExistsError
 from .identify import HysteresisOnlyModel, Identification, fit_hysteresis_only, identify
@@ -159,7 +159,7 @@ __all__ = [
     "AbstractAdjoint", "CheckpointedScan", "ForwardSensitivities",
     "step", "transition_alpha",
     "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
-    "CATALOGUE", "Diagnosis", "diagnose",
+    "CATALOGUE", "Diagnosis", "Policy", "Verdict", "diagnose",
     "ChainedOutput", "Creep", "ExponentialDrift", "LearnedForce", "LowPassInput",
     "PeriodicSensorError", "PositionRipple", "RateDependentStroke", "SecondOrderInput",
     "SensorOutput",

@@ -14,6 +14,7 @@ from stickslip_jax.diagnose.policy import (
     LEADER_ALONE_LEAD,
     LEADER_ALONE_SHARE,
     SECOND_LOOK_CHI2,
+    Policy,
 )
 from stickslip_jax.diagnose.refit import entry_on
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
@@ -33,34 +34,37 @@ def _ranked(*values):
     return [CandidateResult(name, score=score, size_drop=drop) for name, score, drop in values]
 
 
+# The cases below are generated around the policy's thresholds (whitened RSS over
+# N = 24 000 samples, a baseline at BASE): what each rule must do just inside and
+# just outside them, not numbers recorded from a fixture set.
+N, BASE = 24_000.0, 1.0e6
+EXCESS = BASE - N
+
+
 def test_only_competitive_entries_are_refitted_beside_the_leader():
-    # set_03, round 1 (whitened RSS): the amplifier's sizing removed 293 374, the
-    # next two 15 % and 11 % of that.
-    ranked = _ranked(("drive_bandwidth", 5.61e4, 293_374.0),
-                     ("rate_dependent_hysteresis", 2.5e4, 44_180.0),
-                     ("structural_mode", 6.9e3, 32_960.0))
+    lead = 3.0e5
+    ranked = _ranked(("drive_bandwidth", 0.2 * lead, lead),
+                     ("rate_dependent_hysteresis", 0.1 * lead, (COMPETITIVE_SHARE - 0.1) * lead),
+                     ("structural_mode", 0.02 * lead, (COMPETITIVE_SHARE - 0.14) * lead))
     assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth"]
     # One within the share is refitted; ``top`` still caps the count.
-    ranked[2].size_drop = COMPETITIVE_SHARE * 293_374.0 + 1.0
+    ranked[2].size_drop = COMPETITIVE_SHARE * lead + 1.0
     assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth",
                                                              "structural_mode"]
     assert [r.name for r in first_refits(ranked, top=2)] == ["drive_bandwidth"]
     # The score counts as well as the sizing drop.
-    ranked[1].score = 0.3 * 293_374.0
+    ranked[1].score = (COMPETITIVE_SHARE + 0.05) * lead
     assert [r.name for r in first_refits(ranked, top=2)] == [
         "drive_bandwidth", "rate_dependent_hysteresis"]
     assert first_refits([], top=3) == []
-    # Wrong first-order sign and a sizing that raised the cost (set_03, round 2:
-    # sensor_delay at -965, sized to 45 012 from 42 938): no refit first.
-    assert first_refits(_ranked(("sensor_delay", -965.0, -2074.0)), top=3) == []
+    # Wrong first-order sign and a sizing that raised the cost: no refit first.
+    assert first_refits(_ranked(("sensor_delay", -1e3, -2e3)), top=3) == []
 
 
 def test_below_the_leader_a_sizing_that_raised_the_cost_waits_for_the_fallback():
-    # set_09 (creep hidden), round 1, baseline whitened RSS 1.4641e6.
-    base = 1.4641e6
-    ranked = _ranked(("creep", 1.17e6, base - 4.3615e5),
-                     ("rate_dependent_hysteresis", 5.32e5, base - 9.1794e5),
-                     ("drive_bandwidth", 3.82e5, base - 5.5022e6))
+    ranked = _ranked(("creep", 0.8 * BASE, 0.7 * BASE),
+                     ("rate_dependent_hysteresis", 0.4 * BASE, 0.35 * BASE),
+                     ("drive_bandwidth", 0.3 * BASE, -3.0 * BASE))
     assert [r.name for r in first_refits(ranked, top=3)] == ["creep",
                                                              "rate_dependent_hysteresis"]
     # The leader is refitted whatever its sizing did.
@@ -72,16 +76,16 @@ def test_below_the_leader_a_sizing_that_raised_the_cost_waits_for_the_fallback()
 
 
 def test_after_an_acceptance_only_entries_scoring_a_share_of_the_excess_are_sized():
-    # set_03, round 2: 18 938 of (e/σ)² left over the noise; the best |score| 965.
-    chosen = _ranked(("structural_mode", 557.0, 0.0), ("sensor_delay", -965.0, 0.0),
-                     ("stribeck", -415.0, 0.0))
-    assert worth_sizing_after_acceptance(chosen, 18_938.0) == []
+    left = 2.0e4  # (e/σ)² still over the noise after the acceptance
+    chosen = _ranked(("structural_mode", 0.03 * left, 0.0), ("sensor_delay", -0.05 * left, 0.0),
+                     ("stribeck", -0.02 * left, 0.0))
+    assert worth_sizing_after_acceptance(chosen, left) == []
     assert all("not sized" in r.note for r in chosen)
     # A second effect scoring like a first one did is sized, whatever its sign.
-    big = _ranked(("creep", 0.3 * 18_938.0, 0.0),
-                  ("sensor_delay", -(LATER_SCORE_SHARE + 0.01) * 18_938.0, 0.0),
-                  ("stribeck", (LATER_SCORE_SHARE - 0.01) * 18_938.0, 0.0))
-    kept = worth_sizing_after_acceptance(big, 18_938.0)
+    big = _ranked(("creep", 0.3 * left, 0.0),
+                  ("sensor_delay", -(LATER_SCORE_SHARE + 0.01) * left, 0.0),
+                  ("stribeck", (LATER_SCORE_SHARE - 0.01) * left, 0.0))
+    kept = worth_sizing_after_acceptance(big, left)
     assert [r.name for r in kept] == ["creep", "sensor_delay"]
     assert big[2].note and not big[0].note
     # Nothing left over the noise: the floor is zero and every entry is kept.
@@ -89,15 +93,12 @@ def test_after_an_acceptance_only_entries_scoring_a_share_of_the_excess_are_size
 
 
 def test_the_fallback_refits_every_other_sized_entry_but_those_pointing_the_wrong_way():
-    # set_10 (an uncatalogued effect), baseline whitened RSS 5.9793e7: sensor_drift
-    # and structural_mode were refitted first and explained nothing.
-    base = 5.9793e7
-    ranked = _ranked(("sensor_drift", 1.26e6, base - 5.8929e7),
-                     ("stribeck", 6.65e5, base - 5.9916e7),
-                     ("structural_mode", 6.34e5, base - 5.9054e7),
-                     ("rate_dependent_hysteresis", 4.76e5, base - 5.9904e7),
-                     ("contact_damping", 2.99e5, base - 5.9674e7),
-                     ("drive_bandwidth", -6.91e4, base - 1.1545e8))
+    ranked = _ranked(("sensor_drift", 0.02 * BASE, 0.015 * BASE),
+                     ("stribeck", 0.011 * BASE, -0.002 * BASE),
+                     ("structural_mode", 0.010 * BASE, 0.012 * BASE),
+                     ("rate_dependent_hysteresis", 0.008 * BASE, -0.002 * BASE),
+                     ("contact_damping", 0.005 * BASE, 0.002 * BASE),
+                     ("drive_bandwidth", -0.001 * BASE, -0.9 * BASE))
     for r in ranked:
         r.refitted = r.name in ("sensor_drift", "structural_mode")
     again = fallback_refits(ranked)
@@ -113,17 +114,16 @@ def test_the_fallback_refits_every_other_sized_entry_but_those_pointing_the_wron
 
 
 def test_an_entry_without_a_refit_is_told_why():
-    # set_09, round 1: creep's refit explained the residual; the amplifier scored 33 %
-    # of it (not "below 25 %") but its sizing had raised the cost.
-    base = 1.4641e6
-    ranked = _ranked(("creep", 1.17e6, base - 4.3615e5),
-                     ("drive_bandwidth", 3.82e5, base - 5.5022e6),
-                     ("external_load", 1.31e5, base - 1.3447e6),
-                     ("sensor_drift", 4.16e4, base - 1.4229e6),
-                     ("stribeck", -1.15e4, -1.0))
+    lead = 0.7 * BASE
+    ranked = _ranked(("creep", 0.8 * BASE, lead),
+                     ("drive_bandwidth", (COMPETITIVE_SHARE + 0.1) * lead, -3.0 * BASE),
+                     ("external_load", 0.1 * lead, (COMPETITIVE_SHARE - 0.1) * lead),
+                     ("sensor_drift", 0.03 * lead, 0.05 * lead),
+                     ("stribeck", -0.01 * lead, -1.0))
     assert "sizing raised the cost" in why_not_refitted(ranked[1], ranked, 3)
-    assert "below 25 % of the leader" in why_not_refitted(ranked[2], ranked, 3)
-    ranked[3].score = 0.3 * 1.17e6
+    assert f"below {100 * COMPETITIVE_SHARE:.0f} % of the leader" in why_not_refitted(
+        ranked[2], ranked, 3)
+    ranked[3].score = (COMPETITIVE_SHARE + 0.05) * lead
     assert "below the top 3" in why_not_refitted(ranked[3], ranked, 3)
     assert "wrong first-order sign" in why_not_refitted(ranked[4], ranked, 3)
     assert all("explained the residual" in why_not_refitted(r, ranked, 3)
@@ -131,45 +131,40 @@ def test_an_entry_without_a_refit_is_told_why():
 
 
 def test_a_leader_whose_sizing_reached_the_noise_is_refitted_alone():
-    # set_01 (rate-dependent hysteresis hidden), round 1: baseline whitened RSS
-    # 108 360 over 24 000 samples; the leader's sizing left 26 001, creep's 55 087,
-    # the mode's 80 188. Refitted, they explained 101 %, 76 % and 64 %.
-    base, n_obs = 108_360.0, 24_000.0
-    excess = base - n_obs
-    ranked = _ranked(("rate_dependent_hysteresis", 8.33e4, base - 26_001.0),
-                     ("creep", 5.06e4, base - 55_087.0),
-                     ("structural_mode", 5.07e3, base - 80_188.0))
+    lead = (LEADER_ALONE_SHARE + 0.05) * EXCESS
+    ranked = _ranked(("rate_dependent_hysteresis", 0.8 * EXCESS, lead),
+                     ("creep", 0.5 * EXCESS, (LEADER_ALONE_LEAD - 0.1) * lead),
+                     ("structural_mode", 0.05 * EXCESS, 0.3 * lead))
     assert [r.name for r in first_refits(ranked, top=3)] == [
         "rate_dependent_hysteresis", "creep", "structural_mode"]
-    assert [r.name for r in first_refits(ranked, top=3, excess=excess)] == [
+    assert [r.name for r in first_refits(ranked, top=3, excess=EXCESS)] == [
         "rate_dependent_hysteresis"]
-    note = why_not_refitted(ranked[1], ranked, 3, excess)
-    assert "sizing alone removed 98 % of the excess, this entry's 63 %" in note
+    note = why_not_refitted(ranked[1], ranked, 3, EXCESS)
+    share, other = 100 * lead / EXCESS, 100 * ranked[1].size_drop / EXCESS
+    assert (f"sizing alone removed {share:.0f} % of the excess, this entry's "
+            f"{other:.0f} %") in note
     # A competitor whose sizing came within LEADER_ALONE_LEAD of the leader's keeps
-    # its refit (set_12's contact damping at 52 % beside stribeck at 90 % would not).
+    # its refit.
     ranked[1].size_drop = LEADER_ALONE_LEAD * ranked[0].size_drop
-    assert [r.name for r in first_refits(ranked, top=3, excess=excess)] == [
+    assert [r.name for r in first_refits(ranked, top=3, excess=EXCESS)] == [
         "rate_dependent_hysteresis", "creep", "structural_mode"]
-    # A leader short of LEADER_ALONE_SHARE (set_09: creep sized to 71 %) has company.
-    ranked[1].size_drop = 0.3 * excess
-    ranked[0].size_drop = (LEADER_ALONE_SHARE - 0.01) * excess
-    assert len(first_refits(ranked, top=3, excess=excess)) == 3
+    # A leader short of LEADER_ALONE_SHARE has company.
+    ranked[1].size_drop = 0.3 * EXCESS
+    ranked[0].size_drop = (LEADER_ALONE_SHARE - 0.01) * EXCESS
+    assert len(first_refits(ranked, top=3, excess=EXCESS)) == 3
 
 
 def test_the_entries_re_identified_are_the_top_of_the_ranking_that_show_promise():
-    # delay_8us from the profile (noise seed 9000), round 1, baseline whitened RSS
-    # 1.5335e6: the delay ranks first by its score although four refits from the bent
-    # baseline ended below its own (1.1479e6), the rate lag's among them (1.1246e6).
-    base = 1.5335e6
-    ranked = _ranked(("sensor_delay", 4.3e5, base - 2.3253e6),
-                     ("stribeck", 1.71e5, base - 1.3793e6),
-                     ("sensor_drift", 2.48e4, base - 1.4127e6),
-                     ("external_load", 3.54e4, base - 1.4133e6),
-                     ("rate_dependent_hysteresis", 3.99e4, base - 1.5055e6),
-                     ("drive_bandwidth", -7.71e4, base - 2.2287e7))
-    for r, after in zip(ranked[:5], (1.1479e6, 6.2666e5, 1.3091e6, 1.1438e6, 1.1246e6),
-                        strict=True):
-        r.refitted, r.rss_after = True, after
+    # The first-order ranking decides, not the refits from a bent baseline (which can
+    # rank a mimic above the right entry).
+    ranked = _ranked(("sensor_delay", 0.3 * BASE, 1.5 * BASE),
+                     ("stribeck", 0.1 * BASE, -0.1 * BASE),
+                     ("sensor_drift", 0.02 * BASE, 0.08 * BASE),
+                     ("external_load", 0.025 * BASE, 0.08 * BASE),
+                     ("rate_dependent_hysteresis", 0.026 * BASE, 0.02 * BASE),
+                     ("drive_bandwidth", -0.05 * BASE, -14.0 * BASE))
+    for r, after in zip(ranked[:5], (0.75, 0.4, 0.85, 0.74, 0.73), strict=True):
+        r.refitted, r.rss_after = True, after * BASE
     assert [r.name for r in reidentify_order(ranked, top=3)] == [
         "sensor_delay", "stribeck", "sensor_drift"]
     # Never one whose score and sizing both point the wrong way.
@@ -177,14 +172,11 @@ def test_the_entries_re_identified_are_the_top_of_the_ranking_that_show_promise(
 
 
 def test_only_a_baseline_the_polish_moved_far_is_re_identified():
-    # Identified → polished costs: delay_8us (two noise draws) 2.3787e6 → 7.9952e5 and
-    # 1.3462e7 → 1.5335e6; set_03 3.1249e5 → 2.2961e5, set_10 8.7478e7 → 6.4406e7,
-    # interferometer_periodic 92 094 → 81 325.
-    assert identification_bent(2.3787e6, 7.9952e5)
-    assert identification_bent(1.3462e7, 1.5335e6)
-    assert not identification_bent(3.1249e5, 2.2961e5)
-    assert not identification_bent(8.7478e7, 6.4406e7)
-    assert not identification_bent(92_094.0, 81_325.0)
+    gain = Policy().reidentify_polish_gain
+    assert identification_bent(gain * BASE, BASE)
+    assert identification_bent(10 * gain * BASE, BASE)
+    assert not identification_bent(0.99 * gain * BASE, BASE)
+    assert not identification_bent(BASE, BASE)
     assert not identification_bent(float("nan"), 1.0)
 
 
@@ -229,28 +221,27 @@ def test_a_re_identification_starts_from_the_start_with_only_the_entry_moved():
 
 
 def test_a_seeded_entry_gets_a_second_look_when_the_explaining_refit_leaves_structure():
-    # drive_two_pole_mild from the profile (noise seed 9017, 24 000 samples): baseline
-    # whitened RSS 1.42e6; the rate lag refitted to 1.5769e5, 90 % of the excess but
-    # (e/σ)² = 6.6; the amplifier (seeded), score -2.38e4, sized to 1.398e6, was
-    # never refitted and the rate lag was named.
-    n, base = 24_000, 1.42e6
-    rate, mode, amp = _ranked(("rate_dependent_hysteresis", 2.77e5, base - 1.2207e6),
-                              ("structural_mode", 3.39e4, base - 1.3232e6),
-                              ("drive_bandwidth", -2.38e4, base - 1.398e6))
-    rate.refitted, rate.rss_after, rate.chi2_after = True, 1.5769e5, 1.5769e5 / n
-    rate.explained, rate.criterion_delta = (base - 1.5769e5) / (base - n), -1.26e6
+    # An explaining refit (90 % of the excess) that leaves (e/σ)² far above the noise,
+    # beside a seeded entry sized but never refitted.
+    rss = 3 * SECOND_LOOK_CHI2 * N
+    rate, mode, amp = _ranked(("rate_dependent_hysteresis", 0.3 * BASE, 0.2 * BASE),
+                              ("structural_mode", 0.03 * BASE, 0.1 * BASE),
+                              ("drive_bandwidth", -0.02 * BASE, 0.02 * BASE))
+    rate.refitted, rate.rss_after, rate.chi2_after = True, rss, rss / N
+    rate.material = True
+    rate.explained, rate.criterion_delta = 0.9, -1.0e5
     ranked = [rate, mode, amp]
-    assert far_from_noise(ranked, n)
+    assert far_from_noise(ranked, N)
     assert [r.name for r in second_look(ranked, {"drive_bandwidth"})] == ["drive_bandwidth"]
     # An explaining refit near the noise leaves nothing to look for.
     rate.chi2_after = SECOND_LOOK_CHI2 - 0.01
-    assert not far_from_noise(ranked, n)
-    rate.chi2_after = 1.5769e5 / n
+    assert not far_from_noise(ranked, N)
+    rate.chi2_after = rss / N
     # Only refits that would be accepted count (ΔBIC, share explained).
     rate.criterion_delta = 5.0
-    assert not far_from_noise(ranked, n)
-    rate.criterion_delta, rate.explained = -1.26e6, 0.5
-    assert not far_from_noise(ranked, n)
+    assert not far_from_noise(ranked, N)
+    rate.criterion_delta, rate.explained = -1.0e5, 0.5
+    assert not far_from_noise(ranked, N)
     # A seeded entry already refitted, or pointing the wrong way twice, gets none.
     amp.refitted = True
     assert second_look(ranked, {"drive_bandwidth"}) == []
@@ -285,9 +276,60 @@ def test_verdicts_and_statuses_keep_their_strings():
     from stickslip_jax.diagnose.results import SET_ASIDE, Verdict
 
     assert [str(v) for v in Verdict] == ["augmented", "baseline adequate",
-                                         "unexplained residual"]
+                                         "unexplained residual", "partly explained"]
     assert json.dumps({"verdict": Verdict.UNEXPLAINED}) == '{"verdict": "unexplained residual"}'
     r = CandidateResult("creep")
     assert r.waiting and r.status is CandidateStatus.SCORED
     r.set_aside(CandidateStatus.SKIPPED, "skipped: its 1 sample-evaluations would pass")
     assert not r.waiting and r.status in SET_ASIDE
+
+
+def _refitted(name, explained, *, delta=-1e3, material=True, predicts=True, adequate=False):
+    r = CandidateResult(name, refitted=True, explained=explained, criterion_delta=delta,
+                        material=material, predicts=predicts, adequate=adequate)
+    return r
+
+
+def test_an_entry_is_named_only_when_every_test_holds():
+    from stickslip_jax.diagnose.rules import acceptable, acceptable_partly
+
+    assert acceptable(_refitted("creep", 0.9))
+    # Statistically strong but immaterial (within the noise estimate's tolerance), or
+    # predicting the regimes left out worse than the baseline: not named.
+    assert not acceptable(_refitted("creep", 0.9, material=False))
+    assert not acceptable(_refitted("creep", 0.9, predicts=False))
+    assert not acceptable(_refitted("creep", 0.9, delta=-5.0))
+    # A residual left at the noise level explains whatever the share.
+    assert acceptable(_refitted("creep", 0.3, adequate=True))
+    # Between the partial and the full share: a partial answer only.
+    partly = _refitted("creep", 0.6)
+    assert not acceptable(partly) and acceptable_partly(partly)
+    assert not acceptable_partly(_refitted("creep", 0.4))
+    assert not acceptable_partly(_refitted("creep", 0.6, material=False))
+
+
+def test_a_partial_answer_is_kept_when_nothing_explains_and_only_then():
+    from stickslip_jax.diagnose.run import _accept
+
+    def say(_):
+        return None
+
+    full, partly = _refitted("stribeck", 0.8, delta=-500.0), _refitted("creep", 0.6)
+    best = _accept([partly, full], Policy(), say)  # best ΔBIC first: creep
+    assert best is full and not best.partial
+    partly, wrong = _refitted("creep", 0.6, delta=-900.0), _refitted("external_load", 0.3)
+    best = _accept([wrong, partly], Policy(), say)
+    assert best is partly and best.partial and best.accepted
+    none = _accept([_refitted("creep", 0.3)], Policy(), say)
+    assert none is None
+
+
+def test_the_verdict_says_partly_explained_beside_a_kept_entry():
+    from stickslip_jax.diagnose.results import Verdict
+    from stickslip_jax.diagnose.run import _verdict
+
+    kept = _refitted("creep", 0.6)
+    assert _verdict(True, [kept]) is Verdict.PARTLY_EXPLAINED
+    assert _verdict(True, []) is Verdict.UNEXPLAINED
+    assert _verdict(False, [kept]) is Verdict.AUGMENTED
+    assert _verdict(False, []) is Verdict.BASELINE_ADEQUATE

@@ -63,7 +63,7 @@ def diagnose_command(
     with reported_errors():
         setup_jax()
         from ..diagnose import NAMES, diagnose
-        from ..diagnose.report import write_diagnosis
+        from ..diagnose.report import named_line, unexplained_line, write_diagnosis
         from ..model.profiles import lu2015_slc1720
         from ..params import load_params
 
@@ -110,9 +110,7 @@ def diagnose_command(
     typer.echo(f"NRMSE {100 * result.nrmse_baseline.mean():.4f} % -> "
                f"{100 * result.nrmse_final.mean():.4f} %")
     for c in result.accepted:
-        typer.echo(f"  named: {c.name} (ΔBIC {c.criterion_delta:.1f}; "
-                   + ", ".join(f"{k}={v:.4g}" for k, v in c.params.items()) + ")")
+        typer.echo(f"  named: {named_line(c)}")
     if result.unexplained is not None:
-        typer.echo("  unexplained; learned correction depends on: "
-                   + (", ".join(result.unexplained["depends_on"]) or "nothing significant"))
+        typer.echo(f"  {unexplained_line(result)}")
     typer.echo(f"wrote {written['diagnosis']} and {written['report']}")

@@ -17,6 +17,9 @@ over ``N`` samples:
 - the *excess*: ``Σ(e/σ)² − N``, what the residual holds beyond the noise (``N`` is
   its expectation for pure noise);
 - ``ΔBIC = ΔΣ(e/σ)² + k·ln N`` of a refit with ``k`` added parameters (σ known);
+- the *tolerance* ``τ`` (:mod:`.significance`): the excess of the mean ``(e/σ)²``
+  over 1 that the data cannot tell from noise, made of the noise estimate's standard
+  error and the simulator's numerical error;
 - the *rank value* of a sized entry: the larger of ``S`` and its sizing's drop of
   ``Σ(e/σ)²`` (its own parameters fitted with the baseline held).
 
@@ -40,7 +43,10 @@ class Policy:
     ``score_min``               30        ``S`` an entry needs to be sized and refitted
     ``bic_min``                 −10       ΔBIC a refit must fall below to be accepted
     ``explained_min``           0.75      share of the excess a refit must remove
-    ``adequate_chi2``           1.10      mean (e/σ)² that counts as noise
+    ``partial_min``             0.5       share of the excess a refit removes to be
+                                          named as a partial answer
+    ``significance_z``          3.0       standard errors of the noise estimate a
+                                          residual or a refit's drop must exceed
     ``excess_min``              0.01      excess (share of N) below which shares of it
                                           are undefined
     ``indistinguishable``       0.9       share of the best ΔBIC that ties with it
@@ -73,33 +79,47 @@ class Policy:
     :attr:`indistinguishable`). ``−ΔBIC/2`` approximates the log Bayes factor of the
     extended model over the baseline; ``ΔBIC < −10`` is a Bayes factor above
     ``e⁵ ≈ 150``, "very strong" evidence on Kass and Raftery's scale. With ~10⁵
-    samples it is statistical, not practical, significance: :attr:`explained_min`
-    adds the practical test."""
+    samples it is statistical, not practical, significance: :attr:`significance_z`
+    and :attr:`explained_min` add the practical tests."""
 
     explained_min: float = 0.75
     """Share of the excess (``Σ(e/σ)² − N``) an entry's refit must remove to be named,
-    unless it leaves the residual at :attr:`adequate_chi2`; when the accepted entries
-    left more than ``1 −`` this share of the baseline's excess, the residual counts as
-    structured and unexplained. Three quarters of the squared excess is about half of
-    the RMS excess (``1 − √0.25 = 0.5``). Lower values let a wrong entry that mimics
-    part of a large effect of another form be named (a constant load took 52 % of a
-    slew-limited drive's excess), and a wrong name is worse than none. Tuned on the
-    concealed sets; no statistical derivation yet."""
+    unless it leaves the residual within the tolerance (:attr:`significance_z`); when
+    the accepted entries left more than ``1 −`` this share of the baseline's excess, the
+    residual counts as structured and unexplained. Three quarters of the squared excess
+    is about half of the RMS excess (``1 − √0.25 = 0.5``). Lower values let a wrong
+    entry that mimics part of a large effect of another form be named (a constant load
+    took 52 % of a slew-limited drive's excess), and a wrong name is worse than none.
+    Tuned on the concealed sets; no statistical derivation yet."""
 
-    adequate_chi2: float = 1.10
-    """Mean ``(e/σ)²`` at or below which a residual counts as noise: a refit that
-    reaches it explains the residual whatever share it removed, the rounds stop once
-    an accepted entry reaches it, and a final residual at it is not structured (no
-    ``unexplained residual`` verdict, no learned correction). σ is estimated from each
-    recording (period repeatability, third differences) to a few per cent, so the mean
-    ``(e/σ)²`` of pure noise can be off 1 by twice that; 10 % allows for it. Set by
-    hand: not yet derived from the noise estimate's standard error nor from the
-    simulator's numerical error."""
+    partial_min: float = 0.5
+    """When no refit explains the residual (:attr:`explained_min`), the best refit that
+    removes at least this share of the excess (and passes every other test of an
+    acceptance: ΔBIC, materiality, the regimes left out) is named as a *partial*
+    answer, with its share: it explains most of the excess, and what it leaves is
+    structure of another form. It is kept and the diagnosis goes on from it (a second
+    entry, or the learned correction on top of it). Half: most of the squared excess,
+    the largest share a wrong entry that mimics a part of a strong effect must stay
+    below (a constant load took 52 % of a slew-limited drive's); no statistical
+    derivation."""
+
+    significance_z: float = 3.0
+    """One-sided normal quantile of the practical-significance tests
+    (:mod:`.significance`): a residual is at the noise level when its mean ``(e/σ)²``
+    exceeds 1 by at most ``z`` standard errors of the noise estimate (plus the
+    simulator's numerical floor), and an entry's refit is material when it removes
+    more than that. A refit that leaves an adequate residual explains it whatever
+    share it removed; the rounds stop once an accepted entry leaves one; a final
+    residual that is adequate is not structured (no ``unexplained residual`` verdict,
+    no learned correction); a baseline that is adequate is not refitted at all. ``z =
+    3``: a null set is called inadequate about once in 740 (one-sided), so that a
+    name given on a set with nothing hidden is rare; it sets the detection limits,
+    which the diagnosis reports."""
 
     excess_min: float = 0.01
     """Excess, as a share of ``N``, below which the residual has no excess over the
     noise to take shares of: an entry's share explained is then undefined (only ΔBIC
-    and :attr:`adequate_chi2` speak) and the leader-alone rule does not apply. 1 % of
+    and the tolerance speak) and the leader-alone rule does not apply. 1 % of
     the noise's own ``Σ(e/σ)²`` is well inside the noise estimate's uncertainty."""
 
     indistinguishable: float = 0.9

@@ -15,9 +15,15 @@ from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap
 from ..identify.residuals import TraceResiduals
 from ..identify.solve import solve_least_squares
-from ..identify.steps import dynamics_names, friction_names, without_absent_directions
+from ..identify.steps import (
+    JOINT_GN_TOL,
+    dynamics_names,
+    friction_names,
+    without_absent_directions,
+)
 from ..model.actuator import Actuator
 from .budget import Budget, evaluation_work, fit_work
+from .significance import Significance
 
 
 class WhitenedResiduals(eqx.Module):
@@ -64,6 +70,10 @@ class Problem:
         self.budget = budget or Budget(None)
         self.n_obs = int(data.mask.sum())
         self.samples = int(data.mask.size)  # the padded grid the simulator steps
+        self.counts = np.asarray(data.mask.sum(axis=1), dtype=float)
+        self.significance: Significance | None = None
+        """The tolerance of practical significance (:mod:`.significance`), set once the
+        baseline's numerical error is known."""
 
     def evaluation_work(self, act: Actuator, columns: int) -> float:
         """One evaluation of the residual of ``act`` with a Jacobian of ``columns``
@@ -86,6 +96,10 @@ class Problem:
         self.budget.charge(evaluation_work(self.samples, 0, has_drive_stage(act)))
         return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
 
+    def chi2_per_recording(self, nrmse) -> np.ndarray:
+        """Mean ``(e/σ)²`` per recording from its NRMSE [-] (:meth:`nrmse_from_whitened`)."""
+        return (np.asarray(nrmse) * np.asarray(self.data.scale) / self.sigmas) ** 2
+
     def cost_of_output(self, act: Actuator, q) -> float:
         """Whitened RSS of outputs ``q`` (B, T) [m] already simulated for ``act``."""
         res = self.residuals(ParameterMap.make(act, []))
@@ -100,11 +114,19 @@ class Problem:
         return np.sqrt(np.sum(rows**2, axis=1) / n) / np.asarray(d.scale)
 
     def fit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
-            max_steps: int) -> tuple[Actuator, float, object]:
-        """Least squares of the whitened residual over ``names`` from ``act``."""
+            max_steps: int, initial_damping: float = 1.0) -> tuple[Actuator, float, object]:
+        """Least squares of the whitened residual over ``names`` from ``act``.
+
+        It ends by the Gauss-Newton test (:data:`~stickslip_jax.identify.steps.
+        JOINT_GN_TOL`: the full Gauss-Newton step from the point is shorter than a
+        tenth of a standard error), so that a fit said to converge is at its minimiser
+        to a tenth of the errors the data allow, whatever its start; one that is not
+        there after ``max_steps`` says so. ``initial_damping``: the LM damping at the
+        start (small for a start near the optimum)."""
         pmap = ParameterMap.make(act, list(names), specs)
         res = self.residuals(pmap)
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=label,
+                                  gn_tol=JOINT_GN_TOL, initial_damping=initial_damping,
                                   echo=None)
         self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations,
                                     has_drive_stage(act)))

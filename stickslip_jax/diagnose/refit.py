@@ -21,9 +21,11 @@ from ..model.actuator import Actuator
 from ..model.extensions import LEARNED_FEATURES
 from .budget import REIDENTIFY_EVALUATIONS
 from .catalogue import Candidate
+from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
 from .problem import Problem, has_drive_stage, identification_work
 from .results import CandidateResult, CandidateStatus
+from .significance import per_recording_chi2
 
 
 @dataclass(frozen=True)
@@ -38,6 +40,8 @@ class RefitSetup:
     max_steps: int
     """Levenberg-Marquardt steps per refit at most."""
     policy: Policy = DEFAULT_POLICY
+    regimes: tuple[str, ...] = ()
+    """The regime of each recording, for the leave-one-regime-out check (:mod:`.holdout`)."""
 
     def columns(self, start: Actuator, specs: dict) -> int:
         """A refit's θ columns: the baseline's and the entry's own quantities, freed
@@ -66,6 +70,9 @@ class RoundStart:
     """``rss`` over the noise's ``N``, floored at 1e-9."""
     reserve: float
     """Work kept for what must follow the round's refits [sample-evaluations]."""
+    held_out: dict | None = None
+    """``act``'s held-out cost per regime (:func:`~.holdout.held_out_cost`), None when
+    unknown."""
 
 
 def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
@@ -89,6 +96,15 @@ def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     res.explained = ((at.rss - rss_new) / at.excess
                      if at.excess > setup.policy.excess_min * n_obs else np.nan)
     res.chi2_after = rss_new / n_obs
+    sig = problem.significance
+    res.adequate = sig.adequate(rss_new, per_recording_chi2(out.residual, problem.counts))
+    res.material = sig.material(at.rss, rss_new)
+    res.removed_nm = sig.nm(at.rss - rss_new)
+    res.removed_noise_share = (at.rss - rss_new) / n_obs
+    if out.jacobian is not None and out.residual is not None and setup.regimes:
+        res.held_out = held_out_cost(out.residual, out.jacobian, setup.regimes)
+        res.predicts = (at.held_out is None
+                        or predicts_as_well(res.held_out, at.held_out))
     res.wall_s += time.perf_counter() - t0
     # Not converged: its ΔBIC is an upper bound (more steps could only lower it).
     res.note = "" if out.converged else f"refit {out.message}"

@@ -20,9 +20,11 @@ def criterion_text(policy: Policy = DEFAULT_POLICY) -> str:
     ``criterion``)."""
     return ("BIC of the noise-whitened time-domain residual (noise level estimated from "
             "each recording): criterion_delta = ΔRSS/σ² + k·ln N; accepted below "
-            f"{policy.bic_min:g} when the entry also removes at least "
-            f"{100 * policy.explained_min:.0f} % of the residual's excess over the noise "
-            f"or leaves mean (e/σ)² ≤ {policy.adequate_chi2:g}")
+            f"{policy.bic_min:g} when what the entry removes is material (its drop of "
+            f"mean (e/σ)² exceeds the tolerance: {policy.significance_z:g} standard "
+            f"errors of the noise estimate plus the simulator's numerical error) and it "
+            f"removes at least {100 * policy.explained_min:.0f} % of the residual's "
+            f"excess over the noise or leaves a residual within the tolerance")
 
 
 def score_test_text(policy: Policy = DEFAULT_POLICY) -> str:
@@ -34,6 +36,27 @@ def score_test_text(policy: Policy = DEFAULT_POLICY) -> str:
 
 CRITERION = criterion_text()
 """The acceptance criterion of the default policy, in words."""
+
+
+def named_line(c) -> str:
+    """One accepted entry in words: its name, a partial answer's share, what it
+    removed, its ΔBIC and parameters."""
+    share = (f"partial answer: {100 * c.explained:.0f} % of the excess; the rest is "
+             f"structured, " if c.partial else "")
+    params = ", ".join(f"{k}={v:.4g}" for k, v in c.params.items())
+    return (f"{c.name} ({share}removes {c.removed_nm:.3g} nm RMS, ΔBIC "
+            f"{c.criterion_delta:.1f}; {params})")
+
+
+def unexplained_line(d: Diagnosis) -> str:
+    """Where the structure no entry explains is, and what the learned correction
+    depends on."""
+    u = d.unexplained
+    where = ", ".join(f"{w['recording']} ({w['statistic']['dominant_phase']})"
+                      for w in u["where"][:3])
+    return ("unexplained residual" + (f" at {where}" if where else "")
+            + "; learned correction depends on: "
+            + (", ".join(u["depends_on"]) or "nothing significant"))
 
 
 def _finite(x):
@@ -56,13 +79,19 @@ def _evidence(c) -> dict:
     return {"score_statistic": c.score, "probe": c.probe, "sizing_drop": c.size_drop,
             "explained_share_of_excess": _finite(c.explained),
             "chi2_per_sample_after": _finite(c.chi2_after),
+            "removed_nm": _finite(c.removed_nm),
+            "held_out_cost_by_regime": c.held_out,
+            "predicts_regimes_left_out": c.predicts,
+            "removed_share_of_noise_variance": _finite(c.removed_noise_share),
+            "material": c.material,
             "indistinguishable_from": list(c.indistinguishable_from),
             "note": c.note}
 
 
 def diagnosis_dict(d: Diagnosis) -> dict:
     """The content of ``diagnosis.json``."""
-    missing = [{"name": c.name, "evidence": _evidence(c),
+    missing = [{"name": c.name, "partial": c.partial, "summary": named_line(c),
+                "evidence": _evidence(c),
                 "params": c.params, "nrmse_before": c.nrmse_before,
                 "nrmse_after": c.nrmse_after, "criterion_delta": c.criterion_delta}
                for c in d.accepted]
@@ -70,6 +99,9 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "sizing_drop": c.size_drop, "refitted": c.refitted,
                 "criterion_delta": _finite(c.criterion_delta),
                 "explained_share_of_excess": _finite(c.explained),
+                "removed_nm": _finite(c.removed_nm),
+            "held_out_cost_by_regime": c.held_out,
+            "predicts_regimes_left_out": c.predicts, "material": c.material,
                 "nrmse_after": _finite(c.nrmse_after), "accepted": c.accepted,
                 "note": c.note, "wall_s": c.wall_s} for c in rnd] for rnd in d.rounds]
     out = {
@@ -87,6 +119,9 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "numerical_floor_nm": (None if d.numerical_error_m is None
                                else float(np.max(d.numerical_error_m)) * 1e9),
         "verdict": d.verdict,
+        # What the data can tell from the noise (diagnose/significance.py).
+        "significance": d.significance,
+        "detection_limits": d.detection_limits,
         "criterion": criterion_text(d.policy),
         "score_test": score_test_text(d.policy),
         "candidates_by_round": rounds,
@@ -138,25 +173,38 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
     lines += [f"Baseline NRMSE {100 * b['nrmse']:.4f} % (mean (e/σ)² "
               f"{b['chi2_per_sample']:.3f}); final {100 * f['nrmse']:.4f} % "
               f"({f['chi2_per_sample']:.3f}). Model terms: {', '.join(f['terms'])}.", ""]
+    sig = content.get("significance") or {}
+    if sig:
+        lines += [f"Tolerance of the noise: mean (e/σ)² within 1 + "
+                  f"{sig['tolerance_chi2']:.3g} ({sig['tolerance_nm']:.3g} nm RMS): "
+                  f"{sig['z']:g} standard errors of the noise estimate "
+                  f"({sig['noise_estimate_se_chi2']:.3g}) plus the simulator's numerical "
+                  f"error ({sig['numerical_chi2']:.2g}). Less than this is not told "
+                  f"from noise, and no entry is named for removing less.", ""]
     lines += ["## Missing physics, best first", ""]
     if content["missing_physics"]:
-        lines += ["| name | NRMSE before | NRMSE after | ΔBIC | parameters |",
-                  "|---|---|---|---|---|"]
+        lines += ["| name | NRMSE before | NRMSE after | removed [nm RMS] | ΔBIC | "
+                  "parameters |", "|---|---|---|---|---|---|"]
         for m in content["missing_physics"]:
             params = ", ".join(f"{k}={v:.4g}" for k, v in m["params"].items())
-            lines.append(f"| {m['name']} | {100 * m['nrmse_before']:.4f} % | "
-                         f"{100 * m['nrmse_after']:.4f} % | {m['criterion_delta']:.1f} | "
-                         f"{params} |")
+            removed = m["evidence"].get("removed_nm")
+            removed = "" if removed is None else f"{removed:.3g}"
+            name = m["name"] + (" (partial)" if m.get("partial") else "")
+            lines.append(f"| {name} | {100 * m['nrmse_before']:.4f} % | "
+                         f"{100 * m['nrmse_after']:.4f} % | {removed} | "
+                         f"{m['criterion_delta']:.1f} | {params} |")
             ind = m["evidence"]["indistinguishable_from"]
             if ind:
-                lines.append(f"|  | indistinguishable from: {', '.join(ind)} | | | |")
+                lines.append(f"|  | indistinguishable from: {', '.join(ind)} | | | | |")
     else:
         lines.append("None accepted.")
     lines += ["", f"Criterion: {content['criterion']}.", ""]
     if "unexplained" in content:
         u = content["unexplained"]
         lines += ["## Unexplained residual", "",
-                  f"No catalogue entry explains it. A learned force correction depends on: "
+                  ("The named entries leave it. " if content["missing_physics"] else
+                   "No catalogue entry explains it. ")
+                  + f"A learned force correction depends on: "
                   f"{', '.join(u['depends_on']) or 'nothing significant'} (ΔBIC "
                   f"{u['criterion_delta']:.1f}, mean (e/σ)² {u['chi2_before']:.3f} → "
                   f"{u['chi2_after']:.3f}).", ""]
@@ -174,6 +222,16 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
             lines.append(f"| {c['name']} | {c['score_statistic']:.3g} | "
                          f"{c['sizing_drop']:.3g} | {c['refitted']} | "
                          f"{dbic} | {ex} | {c['note']} |")
+        lines.append("")
+    if content.get("detection_limits"):
+        lines += ["## Detection limits on these recordings", "",
+                  "The smallest strength of each entry that a refit could name (its "
+                  "effect beyond what the baseline can mimic reaches the tolerance), and "
+                  "the RMS the effect itself adds to the traces at that strength.", "",
+                  "| entry | strength | effect [nm RMS] | probe |", "|---|---|---|---|"]
+        for name, lim in content["detection_limits"].items():
+            lines.append(f"| {name} | {lim['strength']:.3g} {lim['unit']} | "
+                         f"{lim['effect_nm']:.3g} | {lim['probe']} |")
         lines.append("")
     if content["indistinguishable_here"]:
         lines += ["Cannot be tested with these recordings:", ""]

@@ -23,7 +23,10 @@ class Verdict(enum.StrEnum):
     BASELINE_ADEQUATE = "baseline adequate"
     """The baseline's residual is at the noise level, or nothing structured is left."""
     UNEXPLAINED = "unexplained residual"
-    """A structured residual remains that no accepted entry explains."""
+    """A structured residual remains and no entry was accepted."""
+    PARTLY_EXPLAINED = "partly explained"
+    """Entries were accepted (at least one as a partial answer), and a structured
+    residual remains beside them."""
 
 
 class CandidateStatus(enum.StrEnum):
@@ -72,7 +75,27 @@ class CandidateResult:
     criterion_delta: float = np.nan
     explained: float = np.nan
     chi2_after: float = np.nan
+    adequate: bool = False
+    """The refit leaves a residual within the tolerance of the noise
+    (:meth:`~.significance.Significance.adequate`)."""
+    material: bool = False
+    """What the refit removed exceeds the tolerance
+    (:meth:`~.significance.Significance.material`)."""
+    removed_nm: float = np.nan
+    """What the refit removed, as an RMS over the samples [nm]."""
+    removed_noise_share: float = np.nan
+    """What the refit removed, as a share of the noise variance [-]."""
+    held_out: dict = field(default_factory=dict)
+    """Per regime, the whitened RSS of its recordings predicted by the refit fitted to
+    the other regimes (:mod:`.holdout`)."""
+    predicts: bool = True
+    """The refit predicts the regimes left out at least as well as the model it extends
+    (:func:`~.holdout.predicts_as_well`); True when not checked."""
     accepted: bool = False
+    partial: bool = False
+    """Accepted as a partial answer: it removes a share of the excess between
+    :attr:`~.Policy.partial_min` and :attr:`~.Policy.explained_min`
+    (:func:`~.rules.acceptable_partly`)."""
     indistinguishable_from: list[str] = field(default_factory=list)
     note: str = ""
     """What happened to the entry, in words, for the reports (never read by a
@@ -130,3 +153,9 @@ class Diagnosis:
     what was ``skipped`` (:meth:`.budget.Budget.record`)."""
     policy: Policy = DEFAULT_POLICY
     """The thresholds the diagnosis decided by (:class:`~.policy.Policy`)."""
+    significance: dict = field(default_factory=dict)
+    """The tolerance of practical significance and what it is made of
+    (:meth:`.significance.Significance.record`)."""
+    detection_limits: dict = field(default_factory=dict)
+    """Per catalogue entry, the smallest strength a refit could name on these
+    recordings (:mod:`.scores`): ``strength`` in ``unit``, ``effect_nm``, ``probe``."""

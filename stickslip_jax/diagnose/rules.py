@@ -28,16 +28,29 @@ def rank_value(r: CandidateResult) -> float:
 
 
 def explains(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
-    """The refit removes :attr:`~.Policy.explained_min` of the excess or reaches the noise
-    (:attr:`~.Policy.adequate_chi2`)."""
+    """The refit removes :attr:`~.Policy.explained_min` of the excess or leaves a
+    residual within the tolerance of the noise (:attr:`~.CandidateResult.adequate`,
+    :mod:`.significance`)."""
     return (bool(np.isfinite(r.explained) and r.explained >= policy.explained_min)
-            or r.chi2_after <= policy.adequate_chi2)
+            or r.adequate)
 
 
 def acceptable(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
-    """The refit would be accepted: ΔBIC below :attr:`~.Policy.bic_min` and it
+    """The refit would be accepted: ΔBIC below :attr:`~.Policy.bic_min`, what it
+    removed is :attr:`~.CandidateResult.material` (more than the tolerance of
+    :mod:`.significance`), it :attr:`~.CandidateResult.predicts` the regimes left out
+    of it at least as well as the model it extends (:mod:`.holdout`), and it
     :func:`explains` the residual."""
-    return r.criterion_delta < policy.bic_min and explains(r, policy)
+    return (r.criterion_delta < policy.bic_min and r.material and r.predicts
+            and explains(r, policy))
+
+
+def acceptable_partly(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
+    """The refit would be accepted as a partial answer: every test of :func:`acceptable`
+    but the share, and it removes at least :attr:`~.Policy.partial_min` of the excess
+    (most of it) without reaching :attr:`~.Policy.explained_min`."""
+    return (r.criterion_delta < policy.bic_min and r.material and r.predicts
+            and bool(np.isfinite(r.explained)) and r.explained >= policy.partial_min)
 
 
 def leader_alone(ranked: list[CandidateResult], excess: float | None,

@@ -9,6 +9,8 @@ it decides by is a field of its :class:`~.policy.Policy`:
    time-domain residual (each recording's residual divided by its own noise level,
    estimated from the data; :mod:`.problem`), the metric that every later comparison
    uses.
+   The tolerance is set here (:func:`_significance`); a baseline within it is scored
+   for the record and the detection limits, and nothing is sized or named.
 2. **Locate** the mismatch per recording (:func:`_locate`, :mod:`.locate`).
 3. **Score** every catalogue entry by how well its signature matches the residual
    (:mod:`.scores`): a score (Lagrange-multiplier) test. With ``J_b`` the Jacobian of
@@ -52,9 +54,11 @@ it decides by is a field of its :class:`~.policy.Policy`:
 6. **Accept** (:func:`_accept`) by the Bayesian information criterion of the whitened
    residual (known noise level): ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N
    samples). The best entry is accepted when ``ΔBIC <`` :attr:`~.Policy.bic_min`
-   (strong evidence) *and* it explains the residual: it removes at least
+   (strong evidence), what it removes is material (more than the tolerance of
+   :mod:`.significance`: the noise estimate's uncertainty and the simulator's numerical
+   error) *and* it explains the residual: it removes at least
    :attr:`~.Policy.explained_min` of the residual's squared excess over the noise, or
-   leaves a residual at the noise level (:attr:`~.Policy.adequate_chi2`). Entries
+   leaves a residual within the tolerance. Entries
    whose ΔBIC reaches :attr:`~.Policy.indistinguishable` of the best's are reported
    as indistinguishable from it. Repeat from 3 until no entry is accepted.
 7. **Learned correction** (:func:`_learned_correction`, :mod:`.learned`): if a
@@ -85,9 +89,10 @@ from ..identify.parameters import ParameterMap, scale_invariant_names
 from ..identify.residuals import dataset_plan, numerical_error
 from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
-from ..noise import noise_sigma
+from ..noise import noise_sigma, noise_sigma_relative_se
 from .budget import DEFAULT_WORK_BUDGET, UNIT, Budget
 from .catalogue import CATALOGUE, Candidate
+from .holdout import held_out_cost
 from .learned import fit_learned
 from .locate import analyse_recording, mismatch_entries, residual_peaks
 from .policy import Policy
@@ -96,6 +101,7 @@ from .refit import RefitSetup, RoundStart, refit, reidentify
 from .results import CandidateResult, CandidateStatus, Diagnosis, Verdict
 from .rules import (
     acceptable,
+    acceptable_partly,
     any_explains,
     explains,
     fallback_refits,
@@ -108,6 +114,7 @@ from .rules import (
     why_not_refitted,
 )
 from .scores import score_candidates
+from .significance import Significance
 from .sizing import chosen_for_sizing, size_entries
 
 
@@ -131,6 +138,10 @@ class _Baseline:
     """The baseline's fitted quantities (:func:`~.problem.baseline_free`)."""
     n_base: int
     """Their θ columns."""
+    residual: np.ndarray | None
+    """Whitened residual at ``act`` (the polish's last point)."""
+    jacobian: np.ndarray | None
+    """Its Jacobian in the baseline's θ there (the leave-one-regime-out check)."""
 
 
 def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
@@ -152,8 +163,11 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
     base_names = baseline_free(act, data, fix)
     n_base = int(np.size(ParameterMap.make(act, base_names).zeros()))  # θ columns
     unpolished = act
+    # The identification's joint step already minimised this residual (the ML
+    # whitened one): the polish starts near its optimum, with little damping.
     act, rss, polish = problem.fit(act, base_names, {}, label="baseline polish",
-                                   max_steps=3 * max_steps)
+                                   max_steps=3 * max_steps,
+                                   initial_damping=1e-3 if identify_steps else 1.0)
     if not polish.converged:
         # Every later comparison is against this optimum: a baseline short of its own
         # optimum leaves residual that any entry with a baseline-like signature buys.
@@ -162,7 +176,8 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
                      f"optimum, and part of what the entries remove may be its own.")
     rss, nrmse0, q0 = problem.evaluate(act)
     rss_identified = float(polish.cost_start)  # the identification's (or init's) cost
-    return _Baseline(act, unpolished, rss, rss_identified, nrmse0, q0, base_names, n_base)
+    return _Baseline(act, unpolished, rss, rss_identified, nrmse0, q0, base_names, n_base,
+                     polish.residual, polish.jacobian)
 
 
 def _locate(problem: Problem, q0: np.ndarray):
@@ -192,13 +207,26 @@ def _candidate_pool(candidates: Sequence[str] | None,
 
 def _score(problem: Problem, act: Actuator, base_names: list[str],
            pool: Sequence[Candidate], hints: dict):
-    """Phase 3: the score test of every entry of ``pool`` at ``act``; the scores
-    (:func:`~.scores.score_candidates`) and a result per entry, best score first."""
-    scores = score_candidates(problem, act, base_names, pool, hints)
+    """Phase 3: the score test of every entry of ``pool`` at ``act``; the scores and
+    detection limits (:func:`~.scores.score_candidates`) and a result per entry, best
+    score first."""
+    scores, limits = score_candidates(problem, act, base_names, pool, hints)
     results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe, _) in
                sorted(scores.items(), key=lambda kv: -kv[1][0])]
     problem.say("[score] " + ", ".join(f"{r.name} {r.score:.3g}" for r in results))
-    return scores, results
+    return scores, results, limits
+
+
+def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Significance:
+    """The tolerance of practical significance (:mod:`.significance`): the noise
+    estimates' standard errors and the simulator's error at the baseline."""
+    data = problem.data
+    plan = dataset_plan(base.act, data)
+    numerical = numerical_error(base.act, data, plan, base.q)
+    problem.budget.charge(2 * problem.evaluation_work(base.act, 0))  # the doubled plan
+    rel_se = np.array([noise_sigma_relative_se(r) for r in data.recordings])
+    return Significance(problem.counts, problem.sigmas, rel_se, numerical,
+                        policy.significance_z)
 
 
 def _sized_entry(res: CandidateResult, pool: Sequence[Candidate],
@@ -258,21 +286,39 @@ def _accept(refitted: list[CandidateResult], policy: Policy,
             say: Callable[[str], None]) -> CandidateResult | None:
     """Phase 6: the best refit (``refitted``: best ΔBIC first), that explains the
     residual if any does, marked accepted when :func:`~.rules.acceptable`; its rivals
-    within :attr:`~.Policy.indistinguishable` of it named. None, with a note on the
-    best, when it is not accepted."""
+    within :attr:`~.Policy.indistinguishable` of it named. When none explains, the best
+    that :func:`~.rules.acceptable_partly` is accepted as a partial answer. None, with a
+    note on the best, when nothing is accepted."""
     # The best-scoring entry that explains the residual; else the best overall.
     best = next((r for r in refitted if explains(r, policy)), refitted[0])
+    if not acceptable(best, policy):
+        partly = next((r for r in refitted if acceptable_partly(r, policy)), None)
+        if partly is not None:
+            best, best.partial = partly, True
     best.indistinguishable_from = [
         r.name for r in refitted if r is not best
         if r.criterion_delta < policy.bic_min
         and r.criterion_delta <= policy.indistinguishable * best.criterion_delta]
-    if acceptable(best, policy):
+    if best.partial or acceptable(best, policy):
         best.accepted = True
-        say(f"[accept] {best.name}: ΔBIC {best.criterion_delta:.1f}, explains "
-            f"{100 * best.explained:.0f} % of the excess")
+        held = ""
+        if best.held_out:
+            held = f"; regimes left out: cost {sum(best.held_out.values()):.5g}"
+        say(f"[accept] {best.name}{' (partial answer)' if best.partial else ''}: ΔBIC "
+            f"{best.criterion_delta:.1f}, explains {100 * best.explained:.0f} % of the "
+            f"excess, removes {best.removed_nm:.3g} nm RMS{held}")
         return best
-    why = ("ΔBIC above the threshold" if best.criterion_delta >= policy.bic_min else
-           f"explains only {100 * best.explained:.0f} % of the excess over the noise")
+    if best.criterion_delta >= policy.bic_min:
+        why = "ΔBIC above the threshold"
+    elif not best.predicts:
+        why = ("it predicts the regimes left out of its refit worse than the model it "
+               "extends (leave one regime out)")
+    elif not best.material:
+        why = (f"removes {best.removed_nm:.3g} nm RMS ({100 * best.removed_noise_share:.2g} % "
+               f"of the noise variance), within the tolerance of the noise estimate "
+               f"and the numerical floor")
+    else:
+        why = f"explains only {100 * best.explained:.0f} % of the excess over the noise"
     best.note = "; ".join(filter(None, [best.note, "not accepted: " + why]))
     say(f"[reject] {best.name}: {best.note}")
     return None
@@ -307,10 +353,11 @@ def _learned_correction(problem: Problem, act: Actuator, base_names: list[str],
 
 
 def _verdict(structured: bool, accepted: list[CandidateResult]) -> Verdict:
-    """A structured residual left: unexplained; else augmented when an entry was
-    accepted; else the baseline was adequate."""
+    """A structured residual left: partly explained beside accepted entries, else
+    unexplained; no structure left: augmented when an entry was accepted, else the
+    baseline was adequate."""
     if structured:
-        return Verdict.UNEXPLAINED
+        return Verdict.PARTLY_EXPLAINED if accepted else Verdict.UNEXPLAINED
     if accepted:
         return Verdict.AUGMENTED
     return Verdict.BASELINE_ADEQUATE
@@ -368,8 +415,16 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     # 1. Baseline.
     t0 = time.perf_counter()
     base = _baseline(problem, init, identify_steps, max_steps, notes)
-    timings["baseline_s"] = time.perf_counter() - t0
     chi2_0 = base.rss / n_obs
+    significance = _significance(problem, base, policy)
+    problem.significance = significance
+    timings["baseline_s"] = time.perf_counter() - t0
+    baseline_adequate = significance.adequate(
+        base.rss, problem.chi2_per_recording(base.nrmse))
+    say(f"[significance] tolerance: mean (e/σ)² within 1 + {significance.tolerance:.3g} "
+        f"({significance.nm(significance.tolerance * n_obs):.3g} nm RMS; noise estimate "
+        f"SE {significance.chi2_se:.3g}, numerical {significance.numerical_chi2:.2g}); "
+        f"the baseline is {'within' if baseline_adequate else 'beyond'} it")
 
     # 2. Locate.
     analyses0, mismatch, hints = _locate(problem, base.q)
@@ -381,10 +436,15 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     # refit that follows is the joint step).
     staged = [st for st in identify_steps if st != "joint"]
     pool, not_testable = _candidate_pool(candidates, data.recordings)
-    setup = RefitSetup(problem, base.names, base.n_base, max_steps, policy)
+    regimes = tuple(a.regime for a in analyses0)
+    setup = RefitSetup(problem, base.names, base.n_base, max_steps, policy, regimes)
+    # The leave-one-regime-out cost of each round's start (:mod:`.holdout`).
+    held_out = (held_out_cost(base.residual, base.jacobian, regimes)
+                if base.jacobian is not None and base.residual is not None else None)
 
     accepted: list[CandidateResult] = []
     rounds: list[list[CandidateResult]] = []
+    detection_limits: dict[str, dict] = {}
     act, rss, nrmse_now = base.act, base.rss, float(base.nrmse.mean())
     round_one_work = 0.0  # what round one's scores and sizings cost
     for rnd in range(max_rounds):
@@ -395,14 +455,20 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             say(f"[budget] round {rnd + 1} {note}")
             break
         spent_before_round = budget.spent
-        if (rss / n_obs <= policy.adequate_chi2 and not any(a.flagged for a in analyses0)
-                and rnd == 0):
-            say("[score] residual at the noise level; scoring anyway for the record")
 
         # 3. Score.
         t0 = time.perf_counter()
-        scores, results = _score(problem, act, base.names, pool, hints)
+        scores, results, limits = _score(problem, act, base.names, pool, hints)
         timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
+        if rnd == 0:
+            detection_limits = limits
+            if baseline_adequate:
+                # Nothing the data can tell from the noise: scored for the record (and
+                # the detection limits), but no entry is sized, refitted or named.
+                say("[score] the baseline's residual is within the tolerance of the "
+                    "noise: nothing to explain")
+                rounds.append(results)
+                break
 
         # 4. Size (either sign: a large effect can turn the first-order sign around),
         # with the baseline held; rank by the larger of the score and the sizing's drop.
@@ -418,7 +484,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
 
         # 5. Refit, from the round's optimum.
         reserve = setup.learned_reserve(act) if fallback and not accepted else 0.0
-        at = RoundStart(act, rss, nrmse_now, max(rss - n_obs, 1e-9), reserve)
+        at = RoundStart(act, rss, nrmse_now, max(rss - n_obs, 1e-9), reserve, held_out)
         _refit_round(setup, at, ranked, pool, sized, seeded, top=top,
                      budgeted_first=rnd > 0,
                      reidentification=((base.rss_identified, init, fix, staged)
@@ -436,9 +502,10 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             break
         accepted.append(best)
         act, rss = best.actuator, best.rss_after
+        held_out = best.held_out or None
         pool = [c for c in pool if c.name != best.name]
         nrmse_now = best.nrmse_after
-        if rss / n_obs <= policy.adequate_chi2:
+        if best.adequate:
             break
 
     if budget.skipped:
@@ -452,7 +519,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     # excess; the learned correction then says what it depends on.
     excess0 = max(chi2_0 * n_obs - n_obs, 1e-9)
     left = (rss_final - n_obs) / excess0
-    structured = (rss_final / n_obs > policy.adequate_chi2
+    structured = (not significance.adequate(rss_final, problem.chi2_per_recording(nrmse_f))
                   and (not accepted or left > 1 - policy.explained_min))
     unexplained = None
     if structured and fallback:
@@ -476,4 +543,4 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                      rss_final / n_obs, analyses0, analyses_f, mismatch, accepted, rounds,
                      not_testable, unexplained, verdict, base.q, qf, _terms(act), timings,
                      notes, [float(p) for p in hints["peaks_Hz"]], numerical,
-                     budget.record(), policy)
+                     budget.record(), policy, significance.record(), detection_limits)

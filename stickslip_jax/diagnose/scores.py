@@ -7,6 +7,13 @@ parameters cannot mimic, the score (Lagrange-multiplier) statistic
 ``S = (r·c⊥)²/|c⊥|²`` is the drop of the residual sum of squares that the entry would
 buy to first order, χ²(1) when the entry is absent. Strengths of the wrong sign
 (negative damping, negative delay) score ``−S``: they rank after every admissible one.
+
+The same ``c⊥`` gives each entry's **detection limit** on the recorded protocol: the
+strength ``s`` at which the part of the effect the baseline cannot mimic reaches the
+tolerance of :mod:`.significance`, ``s²·|c⊥|² = τ·N``; below it, a refit could not
+remove a material part of the residual. It is stated in the entry's own units and as
+the RMS the effect itself would add to the traces at that strength [nm] (before the
+baseline absorbs what it can), for the probe where that RMS is smallest.
 """
 
 from __future__ import annotations
@@ -46,9 +53,12 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
 
 def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
                      candidates: Sequence[Candidate], hints: dict):
-    """Score test of every probe (see the module docstring). Returns a dict
-    ``name → (score, strength, probe, shift)`` with each candidate's best probe: the
-    Gauss-Newton strength and the baseline θ shift that goes with it."""
+    """Score test of every probe (see the module docstring). Returns ``(scores,
+    limits)``: ``scores`` a dict ``name → (score, strength, probe, shift)`` with each
+    candidate's best probe, the Gauss-Newton strength and the baseline θ shift that
+    goes with it; ``limits`` a dict ``name →`` detection limit (module docstring:
+    ``strength`` in ``unit``, ``effect_nm``, ``probe``), empty until the problem has
+    its :attr:`~.problem.Problem.significance`."""
     probe_act, entries = install_probes(act, candidates, hints)
     names = base_names + [e[2] for e in entries]
     specs = {e[2]: e[3] for e in entries}
@@ -62,10 +72,16 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
     jb_n = jb / np.where(norms > 0, norms, 1.0)
     q, _ = np.linalg.qr(jb_n)
     out: dict[str, tuple[float, float, Probe, np.ndarray]] = {}
+    limits: dict[str, dict] = {}
+    sig = problem.significance
     for k, (cand, probe, _, spec) in enumerate(entries):
         c = jac[:, n_base + k]
         c_perp = c - q @ (q.T @ c)
         cc = float(c_perp @ c_perp)
+        if sig is not None and cc > 0:
+            limit = _detection_limit(problem, c, cc, spec, probe)
+            if cand.name not in limits or limit["effect_nm"] < limits[cand.name]["effect_nm"]:
+                limits[cand.name] = limit
         if cc <= 1e-12 * max(float(c @ c), 1e-300):
             score, beta = 0.0, 0.0
         else:
@@ -87,5 +103,18 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
         if cand.name not in out or (score >= 0, abs(score)) > (out[cand.name][0] >= 0,
                                                                 abs(out[cand.name][0])):
             out[cand.name] = (score, beta * spec.scale, probe, shift)
-    return out
+    return out, limits
+
+
+def _detection_limit(problem: Problem, c: np.ndarray, cc: float, spec: ParameterSpec,
+                     probe: Probe) -> dict:
+    """The detection limit of one probe (module docstring): ``c`` its whitened
+    Jacobian column, ``cc = |c⊥|²``."""
+    sig = problem.significance
+    theta = float(np.sqrt(sig.tolerance * sig.n_obs / cc))
+    # The effect itself in metres: un-whiten the column (each recording's σ).
+    rows = np.asarray(c).reshape(len(problem.sigmas), -1) * problem.sigmas[:, None]
+    effect_m = theta * float(np.sqrt(np.sum(rows**2) / sig.n_obs))
+    return {"strength": theta * abs(float(spec.scale)), "unit": spec.unit,
+            "effect_nm": effect_m * 1e9, "probe": probe.label}
 
