@@ -67,7 +67,7 @@ def loading_curve_uncertainty(pmap: ParameterMap, theta, unc: Uncertainty,
     if "pi_weights" not in pmap.names:
         return None
     theta = jnp.asarray(theta, dtype=float)
-    thresholds = np.asarray(pmap.actuator(theta).hysteresis.thresholds, dtype=float)
+    thresholds = np.asarray(pmap.start.hysteresis.thresholds, dtype=float)  # never fitted
     knots = np.append(thresholds[1:][thresholds[1:] < u_top], u_top)
 
     def strokes(th):
@@ -78,8 +78,8 @@ def loading_curve_uncertainty(pmap: ParameterMap, theta, unc: Uncertainty,
 
     out = []
     for fn in (strokes, slopes):
-        value = np.asarray(fn(theta))
-        grad = np.asarray(jax.jacfwd(fn)(theta))
-        se, det = unc.of(grad, value)
-        out += [value, se, det]
+        # One compiled program each (op by op, each operation would compile its own).
+        value, grad = jax.jit(lambda th, fn=fn: (fn(th), jax.jacfwd(fn)(th)))(theta)
+        se, det = unc.of(np.asarray(grad), np.asarray(value))
+        out += [np.asarray(value), se, det]
     return LoadingCurve(knots, *out)

@@ -262,4 +262,5 @@ class ParameterMap(eqx.Module):
             return jnp.concatenate([jnp.atleast_1d(p.to_physical(th[sl[p.name]]))
                                     for p in self.free])
 
-        return np.asarray(jax.jacfwd(flat)(jnp.asarray(theta)))
+        # Compiled as one program (op by op, each operation would compile its own).
+        return np.asarray(jax.jit(jax.jacfwd(flat))(jnp.asarray(theta)))

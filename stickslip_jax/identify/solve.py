@@ -171,7 +171,8 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                         atol: float = 1e-6, ftol: float | None = None, window: int = 5,
                         gn_tol: float | None = None, initial_damping: float = 1.0,
                         scale_by_jacobian: bool = True, label: str = "fit",
-                        echo: Callable[[str], None] | None = None) -> SolveResult:
+                        echo: Callable[[str], None] | None = None,
+                        jacobian: Callable | None = None) -> SolveResult:
     """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
 
     Optimistix's solver takes the steps; this loop drives them one at a time (as
@@ -218,6 +219,10 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     Cauchy tolerances then apply to φ: atol = 1e-6 is a change worth 1e-6 of one
     unit-sensitivity direction.
 
+    ``jacobian``: ``θ ↦ (residuals(θ), ∂residuals/∂θ)`` evaluated elsewhere (the
+    identification's shared programs, :class:`~.sensitivities.StepJacobian`) instead
+    of :class:`ColumnSplitJacobian` over ``residuals``.
+
     Never raises on failure: the verdict is in the result.
     """
     theta0 = jnp.asarray(theta0, dtype=float)
@@ -235,15 +240,23 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         origin, d = args
         return residuals(origin + phi / d)
 
-    evaluate = ColumnSplitJacobian(scaled)
+    if jacobian is None:
+        evaluate = ColumnSplitJacobian(scaled)
+    else:
+        def evaluate(phi, args):
+            # In numpy: the same rounding as XLA's, and no small programs to compile
+            # for each step's shapes.
+            origin, d = (np.asarray(a) for a in args)
+            value, jac = jacobian(origin + np.asarray(phi) / d)
+            return np.asarray(value), np.asarray(jac) / d[None, :]
 
     def fn(phi, args):
         # args[2]: the value and Jacobian at φ, evaluated before the step.
         return _evaluated(phi, args[2]), None
 
     options, tags = {"jac": "fwd"}, frozenset()
-    phi0 = jnp.zeros_like(theta0)
-    d = jnp.ones_like(theta0)
+    phi0 = np.zeros(theta0.shape)  # numpy: nothing compiled for each step's shapes
+    d = np.ones(theta0.shape)
     value, jac = evaluate(phi0, (theta0, d))
     if scale_by_jacobian:
         # MINPACK's x_scale='jac': the Jacobian at the start gives the column norms,
@@ -252,8 +265,8 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         largest = float(norms.max())
         norms = np.where(np.isfinite(norms) & (norms > 1e-12 * max(largest, 1e-300)), norms,
                          max(largest, 1.0))
-        d = jnp.asarray(norms)
-        jac = jac / d[None, :]
+        d = norms
+        jac = np.asarray(jac) / d[None, :]
     if ftol is None:
         ftol = 0.1 / max(int(value.size), 1)
     if gn_tol is not None:
@@ -274,14 +287,10 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         loss = jnp.sum(new_state.f_info.residual ** 2)
         return new_y, eqx.partition(new_state, eqx.is_array)[0], loss
 
-    def jacobian_at_accepted(dynamic, d):
-        # The Jacobian optimistix holds for the last accepted point, in θ coordinates.
-        jac = eqx.combine(static, dynamic).f_info.jac.as_matrix()
-        return np.asarray(jac) * np.asarray(d)[None, :]
-
     y, dynamic = phi0, dynamic0
     costs: list[float] = []  # cost at each accepted point, the start first
     residual_start = None
+    jac_accepted = jac  # the Jacobian (in φ) at the last accepted point
     ok, message, n = False, f"not converged: hit max_steps={max_steps}", 0
     # The first call only evaluates the start (optimistix accepts it as the first
     # point); each later call proposes one LM step and accepts or rejects it.
@@ -293,6 +302,7 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         cost, accepted = float(loss), int(st.num_accepted_steps)
         if accepted > len(costs):
             costs.append(cost)
+            jac_accepted = jac
             if gn_tol is not None:  # (value, jac) are this accepted point's
                 distance = gauss_newton_distance(value, jac)
                 if echo is not None:
@@ -320,13 +330,13 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                                  f"of itself over {window} accepted steps)")
             break
     # y is the last accepted point, so the costs the steps reported and the residual
-    # and Jacobian the state holds are the ones at the start and the end (no extra
-    # compiled evaluation needed).
+    # the state holds are the ones at the start and the end, and the Jacobian there is
+    # the one evaluated with it (no extra compiled evaluation needed).
     st = eqx.combine(static, dynamic)
     residual = np.asarray(st.f_info.residual)
-    jac = jacobian_at_accepted(dynamic, d)
+    jac = np.asarray(jac_accepted) * np.asarray(d)[None, :]
     wall = time.perf_counter() - start
     cost_start, cost_end = (costs[0], costs[-1]) if costs else (np.nan, np.nan)
-    theta = np.asarray(theta0 + y / d)
+    theta = np.asarray(theta0) + np.asarray(y) / np.asarray(d)
     return SolveResult(theta, ok, message, n, wall, cost_start, cost_end, residual_start,
                        residual, jac)
