@@ -118,19 +118,19 @@ class RecordingPrograms:
     tangents of the ``mask`` leaves of ``actuator`` (:meth:`sensitivities`), ``threads``
     calls at once (default :func:`~.solve.jacobian_threads`).
 
-    :attr:`width`, the tangents per call: the total size of the mask's leaves shared
-    equally among the threads, so that the widest step (every fitted quantity) takes
-    one call per thread and recording, and a narrower step one call per recording.
-    Without a mask only :meth:`simulate` serves.
+    :attr:`width`, the tangents per call (default: the total size of the mask's leaves
+    shared equally among the threads, so that the widest step, every fitted quantity,
+    takes one call per thread and recording, and a narrower step one call per
+    recording). Without a mask only :meth:`simulate` serves.
     """
 
     def __init__(self, data: Dataset, actuator=None, mask=None, *,
-                 threads: int | None = None):
+                 threads: int | None = None, width: int | None = None):
         self.data = data
         self.mask = mask
         self.threads = jacobian_threads() if threads is None else int(threads)
-        self.width = None
-        if mask is not None:
+        self.width = width
+        if mask is not None and width is None:
             size = sum(int(np.size(x)) for x, m in zip(jax.tree.leaves(actuator),
                                                         jax.tree.leaves(mask), strict=True)
                        if m)
@@ -233,33 +233,24 @@ class StepJacobian:
         self.res = res
         self.programs = programs
         self.rows = [int(b) for b in rows]
-        pmap, mask = res.pmap, programs.mask
-
-        def build(theta):
-            def leaves(th):
-                return eqx.filter(pmap.actuator(th), mask)
-
-            basis = jnp.eye(theta.size, dtype=theta.dtype)
-            tangents = jax.vmap(lambda e: jax.jvp(leaves, (theta,), (e,))[1])(basis)
-            return pmap.actuator(theta), tangents
-
-        self._build = eqx.filter_jit(build)
         self._outputs: dict[bytes, np.ndarray] = {}
 
-    def __call__(self, theta) -> tuple[jax.Array, jax.Array]:
-        theta = jnp.asarray(theta, dtype=float)
-        actuator, tangents = self._build(theta)
-        q, dq = self.programs.sensitivities(actuator, tangents, self.res.plan, self.rows)
+    def __call__(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        theta = np.asarray(theta, dtype=float)
+        pmap = self.res.pmap
+        # The actuator and its leaves' tangents in numpy: nothing compiled per step.
+        tangents = pmap.leaf_tangents(theta, self.programs.mask)
+        q, dq = self.programs.sensitivities(self.actuator(theta), tangents, self.res.plan,
+                                            self.rows)
         t = self.res.data.voltages.shape[1]
-        self._outputs[np.asarray(theta).tobytes()] = q
+        self._outputs[theta.tobytes()] = q
         while len(self._outputs) > self.KEEP:
             self._outputs.pop(next(iter(self._outputs)))
         return self.res.jacobian_from_outputs(q[:, :t], dq[:, :t])
 
     def actuator(self, theta):
-        """The step's actuator at ``theta`` (``pmap.actuator``, compiled with the
-        tangents)."""
-        return self._build(jnp.asarray(theta, dtype=float))[0]
+        """The step's actuator at ``theta`` (``pmap.actuator`` in numpy)."""
+        return self.res.pmap.actuator(np.asarray(theta, dtype=float), xp=np)
 
     def outputs_at(self, theta) -> np.ndarray | None:
         """The outputs q [m] (R, T) at ``theta`` if it was one of the last points
