@@ -208,8 +208,9 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     quadratic model predicted the cost to 1 %: from a start near the optimum, along
     strongly correlated directions (the PI weights), that is ~8 damped steps, each a
     Jacobian, before the steps become Gauss-Newton's. Madsen, Nielsen & Tingleff
-    (2004, §3.2) recommend 1e-3 from a start already good (a rejected step raises it
-    4x at the cost of one evaluation).
+    (2004, §3.2) start at 1e-6 when the start is believed to be close to the
+    minimiser, at 1e-3 (or 1) otherwise (a rejected step raises it 4x at the cost of
+    one evaluation).
 
     ``scale_by_jacobian`` (MINPACK's and scipy's ``x_scale='jac'``): the solve runs in
     φ = d·(θ − θ0) with d the column norms of the Jacobian at the start, so every

@@ -75,15 +75,22 @@ JOINT_GN_TOL = 0.01
 ``gn_tol``): the reported values are then the minimiser that the standard errors
 describe, to a tenth of those errors."""
 STEP_SOLVE = {
-    "hysteresis": dict(initial_damping=1e-3),
+    "hysteresis": dict(initial_damping=1e-6),
     "friction": dict(initial_damping=1e-3),
-    "joint": dict(gn_tol=JOINT_GN_TOL, initial_damping=1e-3),
+    "joint": dict(gn_tol=JOINT_GN_TOL, initial_damping=1e-6),
 }
-"""How each step solves (:func:`~.solve.solve_least_squares`). The hysteresis step is
-nearly linear in the PI weights and the friction step has two parameters, and the joint
-step starts at the optimum of the three: each starts with little damping. The dynamics
-step starts from a rough guess, with optimistix's default. Only the joint step, the
-estimate, ends by the Gauss-Newton test."""
+"""How each step solves (:func:`~.solve.solve_least_squares`). Madsen, Nielsen &
+Tingleff (2004, §3.2) start the damping at 1e-6 of the largest diagonal of JᵀJ when
+the start is believed to be close to the minimiser, at 1e-3 otherwise. The hysteresis
+step is nearly linear in the PI weights (a Gauss-Newton step lands next to its
+optimum from anywhere) and the joint step starts at the optimum of the three: both
+start at 1e-6, nearly Gauss-Newton. On the identification fixtures that took the
+joint step from 171 standard errors to 0.02 in two steps (six at 1e-3, each a
+Jacobian of every recording, to a point 0.002 standard errors away) and the
+hysteresis step from six steps to three. The friction step's two parameters start
+from the profile's values, at 1e-3; the dynamics step starts from a rough guess, with
+optimistix's default (1). Only the joint step, the estimate, ends by the
+Gauss-Newton test."""
 DYNAMICS = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0")
 """The dynamics step's names with the paper's law (:func:`dynamics_names` for any)."""
 
