@@ -77,7 +77,10 @@ def setup_jax(*, all_cpu_cores: bool = False) -> None:
         with contextlib.suppress(Exception):  # a read-only home must not stop the tool
             Path(cache).mkdir(parents=True, exist_ok=True)
             jax.config.update("jax_compilation_cache_dir", cache)
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+            # Every program, the small ones too: identify compiles ~70 of 0.05 to 0.5 s
+            # (its steps' Levenberg-Marquardt steps, single operations), about 3 s
+            # that a second run would otherwise compile again (issue #28).
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> typer.Exit:
