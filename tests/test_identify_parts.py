@@ -334,3 +334,39 @@ def test_shared_programs_give_the_steps_residuals_and_jacobians(fixtures_dir):
     np.testing.assert_allclose(q * data.mask, q_ref * data.mask, rtol=1e-12, atol=1e-20)
     last = int(data.mask[1].sum()) - 1  # the step, the shortest recording
     np.testing.assert_array_equal(q[1, last:], q[1, last])
+
+
+def test_levenberg_marquardt_steps_are_optimistixs():
+    # The numpy steps against optimistix's LevenbergMarquardt driven one step at a time,
+    # on a problem with rejected steps (Rosenbrock) and a damping started low and high.
+    import optimistix as optx
+
+    from stickslip_jax.identify.solve import LevenbergMarquardtSteps
+
+    def fn(y, _):
+        return jnp.stack([10 * (y[1] - y[0] ** 2), 1 - y[0], 0.1 * y[2] * y[0] - 0.2]), None
+
+    y0 = jnp.array([-1.2, 1.0, 0.5])
+    rejected = 0
+    for damping in (1.0, 1e-6):
+        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-8, norm=optx.rms_norm)
+        state = solver.init(fn, y0, None, {}, jax.eval_shape(lambda: fn(y0, None)[0]), None,
+                            frozenset())
+        state = eqx.tree_at(lambda st: st.search_state.step_size, state,
+                            jnp.asarray(1.0 / damping))
+        ours = LevenbergMarquardtSteps(y0, step_size=1.0 / damping, rtol=1e-6, atol=1e-8)
+        y = y0
+        for _ in range(60):
+            value, jac = fn(ours.y_eval, None)[0], jax.jacfwd(lambda v: fn(v, None)[0])(
+                ours.y_eval)
+            rejected += not ours.step(np.asarray(value), np.asarray(jac))
+            y, state, _ = solver.step(fn, y, None, {}, state, frozenset())
+            assert int(state.num_accepted_steps) == ours.accepted
+            np.testing.assert_allclose(ours.y_eval, np.asarray(state.y_eval), rtol=1e-10,
+                                       atol=1e-13)
+            np.testing.assert_allclose(ours.y, np.asarray(y), rtol=1e-10, atol=1e-13)
+            assert ours.terminate == bool(state.terminate)
+            if ours.terminate:
+                break
+        assert ours.terminate
+    assert rejected > 0  # the trust region's rejections took part
