@@ -327,6 +327,14 @@ def test_shared_programs_give_the_steps_residuals_and_jacobians(fixtures_dir):
     r_ref, jac_ref = value_and_jacobian(res, jnp.asarray(theta))
     np.testing.assert_allclose(r, r_ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(r_ref)))
     np.testing.assert_allclose(jac, jac_ref, rtol=1e-8, atol=1e-10 * np.max(np.abs(jac_ref)))
+    # One column (2·1 ≤ width): one plain JVP per recording, the other program.
+    res1 = TraceResiduals.make(ParameterMap.make(act, ["z_ba_backward"]), sub, stepping=plan,
+                               whiten=True)
+    r1, jac1 = StepJacobian(res1, programs, rows)(np.array([0.1]))
+    r1_ref, jac1_ref = value_and_jacobian(res1, jnp.array([0.1]))
+    np.testing.assert_allclose(r1, r1_ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(r1_ref)))
+    np.testing.assert_allclose(jac1, jac1_ref, rtol=1e-8,
+                               atol=1e-10 * np.max(np.abs(jac1_ref)))
     # The traces alone, every recording, padded with the last real value.
     q = programs.simulate(act, plan)
     q_ref = np.asarray(ss.simulate_batch(act, data.voltages, dt=data.dt, drives=data.drives,

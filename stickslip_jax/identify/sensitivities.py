@@ -18,8 +18,10 @@ and everything that differs between steps is an argument:
   width (:attr:`RecordingPrograms.width`, zero-padded);
 - the recording: voltage, number of real samples, sample period, drive.
 
-Only the stepping plan (the sub-step counts, static) and the shapes key the program,
-so the steps compile it once per plan and the final uncertainty and traces reuse it.
+Only the stepping plan (the sub-step counts, static), the shapes and the tangents per
+call key the program, so the steps compile it once per plan (twice: a step with few
+columns takes them one per call, :data:`NARROW_RULE`), and the final uncertainty and
+traces reuse it.
 A call computes one (recording, share) pair; the pairs are shared among threads
 (:func:`~.solve.jacobian_threads`; the simulator's loop is sequential, so one call
 keeps one core busy), longest recordings first, and put back in a fixed order: the
@@ -97,6 +99,18 @@ def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
         value, tangent = jax.jvp(output, (perturbed,), (jax.tree.map(lambda x: x[0], tangents),))
         return value, tangent[:, None]
     return jax.vmap(lambda t: jax.jvp(output, (perturbed,), (t,)), out_axes=(None, -1))(tangents)
+
+
+NARROW_RULE = "2·k ≤ width"
+"""When a step's k columns go one per call (a second program: one plain JVP, no
+vmapped tangents) instead of ``width`` per call. A vmapped pass pays a fixed cost for
+its vector operations besides each tangent's: through one 2500-sample recording, with
+the native loops of :func:`~stickslip_jax.fast_cpu_loops`, 4 ms without tangents, 6 ms
+with one plain tangent, 16 ms with two vmapped and 65 ms with 21 (issue #28). So k
+single calls (6.2·k ms) beat one call of 21 (65 ms) up to k = 10: the friction step's
+two break-aways and the dynamics step's six quantities go singly (on the fixtures a
+friction Jacobian 0.1 s instead of 0.6 s), the hysteresis (35) and joint (42) steps
+in shares of the width."""
 
 
 def perturbed_mask(actuator, names: Sequence[str],
@@ -183,13 +197,16 @@ class RecordingPrograms:
         """``(q (R, T), dq (R, T, k))``: the outputs [m] of the recordings ``rows``
         (default all) and their derivatives along ``k`` tangents, ``tangents`` being a
         pytree of the mask's leaves (``eqx.filter(…, mask)`` of an actuator-shaped tree)
-        with a leading axis of k on every leaf."""
+        with a leading axis of k on every leaf.
+
+        At most half :attr:`width` tangents go one per call, through the program of a
+        single plain JVP (:data:`NARROW_RULE`); more, :attr:`width` per call."""
         rows = self._all(rows)
         perturbed, fixed = eqx.partition(actuator, self.mask)
         perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
         tangents = jax.tree.map(lambda x: np.asarray(x, dtype=float), tangents)
         k = jax.tree.leaves(tangents)[0].shape[0]
-        w = self.width
+        w = 1 if 2 * k <= self.width else self.width
         shares = max(1, -(-k // w))
 
         def share(s):
