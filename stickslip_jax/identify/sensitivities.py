@@ -20,9 +20,9 @@ and everything that differs between steps is an argument:
 
 Only the stepping plan (the sub-step counts, static), the shapes and the tangents per
 call key the program, so the steps compile it once per plan (twice: a step with few
-columns takes them one per call, :data:`NARROW_RULE`), and the final uncertainty and
-traces reuse it.
-A call computes one (recording, share) pair; the pairs are shared among threads
+columns takes them one per call, :func:`tangents_per_call`), and the final
+uncertainty and traces reuse it. A call computes one (recording, share) pair; the
+pairs are shared among threads
 (:func:`~.solve.jacobian_threads`; the simulator's loop is sequential, so one call
 keeps one core busy), longest recordings first, and put back in a fixed order: the
 numbers do not depend on the threads.
@@ -101,16 +101,19 @@ def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
     return jax.vmap(lambda t: jax.jvp(output, (perturbed,), (t,)), out_axes=(None, -1))(tangents)
 
 
-NARROW_RULE = "2·k ≤ width"
-"""When a step's k columns go one per call (a second program: one plain JVP, no
-vmapped tangents) instead of ``width`` per call. A vmapped pass pays a fixed cost for
-its vector operations besides each tangent's: through one 2500-sample recording, with
-the native loops of :func:`~stickslip_jax.fast_cpu_loops`, 4 ms without tangents, 6 ms
-with one plain tangent, 16 ms with two vmapped and 65 ms with 21 (issue #28). So k
-single calls (6.2·k ms) beat one call of 21 (65 ms) up to k = 10: the friction step's
-two break-aways and the dynamics step's six quantities go singly (on the fixtures a
-friction Jacobian 0.1 s instead of 0.6 s), the hysteresis (35) and joint (42) steps
-in shares of the width."""
+def tangents_per_call(k: int, width: int) -> int:
+    """Tangents per call for a step of ``k`` columns: one (a plain JVP, the second
+    program) when ``2·k ≤ width``, else ``width``.
+
+    A vmapped pass pays a fixed cost for its vector operations besides each tangent's:
+    through one 2500-sample recording, with the native loops of
+    :func:`~stickslip_jax.fast_cpu_loops`, 4 ms without tangents, 6 ms with one plain
+    tangent, 16 ms with two vmapped and 65 ms with 21 (issue #28). So k single calls
+    (6.2·k ms) beat one call of 21 up to k = 10: the friction step's two break-aways
+    and the dynamics step's six quantities go singly (on the fixtures a friction
+    Jacobian takes 0.14 s instead of 0.62 s), the hysteresis (35) and joint (42) steps
+    in shares of the width."""
+    return 1 if 2 * k <= width else width
 
 
 def perturbed_mask(actuator, names: Sequence[str],
@@ -153,7 +156,7 @@ class RecordingPrograms:
             (jnp.asarray(data.voltages[b]),
              jnp.asarray(int(data.mask[b].sum()), dtype=jnp.int32),
              jnp.asarray(data.dt[b]),
-             jax.tree.map(lambda x, b=b: jnp.asarray(x[b]), data.drives))
+             jax.tree.map(lambda x, b=b: jnp.asarray(np.asarray(x)[b]), data.drives))
             for b in range(len(data))]
         self._length = np.asarray(data.mask.sum(axis=1), dtype=int)
         self._compiled: set = set()
@@ -200,13 +203,13 @@ class RecordingPrograms:
         with a leading axis of k on every leaf.
 
         At most half :attr:`width` tangents go one per call, through the program of a
-        single plain JVP (:data:`NARROW_RULE`); more, :attr:`width` per call."""
+        single plain JVP (:func:`tangents_per_call`); more, :attr:`width` per call."""
         rows = self._all(rows)
         perturbed, fixed = eqx.partition(actuator, self.mask)
         perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
         tangents = jax.tree.map(lambda x: np.asarray(x, dtype=float), tangents)
         k = jax.tree.leaves(tangents)[0].shape[0]
-        w = 1 if 2 * k <= self.width else self.width
+        w = tangents_per_call(k, self.width)
         shares = max(1, -(-k // w))
 
         def share(s):
@@ -242,9 +245,10 @@ class StepJacobian:
     optimum come with the solve.
     """
 
-    KEEP = 4
-    """Points whose outputs are kept [-] (the solver accepts the point it evaluated
-    last, or one of the few before it after rejected steps)."""
+    KEEP = 8
+    """Points whose outputs are kept [-]: the solver ends at the point it evaluated
+    last, or, after rejected steps, at one before it (after more than seven rejected
+    steps in a row the traces at the optimum are simulated again)."""
 
     def __init__(self, res, programs: RecordingPrograms, rows: Sequence[int]):
         self.res = res
