@@ -1,8 +1,13 @@
-"""Identification speed: end-to-end `stickslip identify` on the fixtures against
-scipy.optimize.least_squares over the same JAX residuals.
+"""Identification speed: end-to-end `stickslip identify` on the fixtures, cold and
+warm, and against scipy.optimize.least_squares over the same JAX residuals.
 
     .venv/bin/python benchmarks/bench_identify.py --json out/bench_identify.json
 
+0. Issue #28: `stickslip identify fixtures/identification --out OUT --fix Ms=0.0247`
+   (the profile's start, figures included) in fresh processes, --runs times with the
+   persistent compilation cache off (cold), then once to fill an empty cache and
+   --runs times with it (warm): medians and each run's wall and CPU time (user + system
+   of the child), with the load average before each run. Target: both at most 20 s.
 1. End to end: `stickslip identify fixtures/identification --fix Ms=0.0247` from the
    start the tests use (truth x 1.4/0.6/1.5/0.65/0.6, z_ba x1.4/0.65, PI x1.3), in a
    fresh process with the persistent compilation cache off: compilation included.
@@ -34,6 +39,8 @@ located slip reversals, refined intervals), planned once per residual from its s
 import argparse
 import json
 import os
+import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -95,6 +102,43 @@ def end_to_end() -> dict:
     return {"wall_s": wall, "exit_code": run.returncode,
             "steps_wall_s": sum(s["wall_s"] for s in steps), "params": params,
             "summary": [ln for ln in run.stdout.splitlines() if "NRMSE" in ln]}
+
+
+def timed_identify(cache: str, out: Path) -> dict:
+    """One `stickslip identify fixtures/identification --out OUT --fix Ms=0.0247` in a
+    fresh process with ``STICKSLIP_CACHE_DIR=cache``: wall and CPU seconds, exit code,
+    and the 1-minute load average just before it."""
+    cmd = [str(Path(sys.executable).parent / "stickslip"), "identify", str(FIX), "--out",
+           str(out), "--fix", "Ms=0.0247", "--force"]
+    load = os.getloadavg()[0]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    run = subprocess.run(cmd, env={**os.environ, "STICKSLIP_CACHE_DIR": cache},
+                         capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"wall_s": wall, "cpu_s": cpu, "exit_code": run.returncode, "load_1min": load}
+
+
+def cold_and_warm(runs: int) -> dict:
+    """Issue #28's measurement (module doc, 0): ``runs`` cold runs, one run filling an
+    empty cache, ``runs`` warm runs."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out"
+        cold = [timed_identify("off", out) for _ in range(runs)]
+        cache = Path(tmp) / "cache"
+        cache.mkdir()
+        fill = timed_identify(str(cache), out)
+        warm = [timed_identify(str(cache), out) for _ in range(runs)]
+    result = {"command": "stickslip identify fixtures/identification --out OUT "
+                         "--fix Ms=0.0247", "fill": fill}
+    for name, rs in (("cold", cold), ("warm", warm)):
+        result[name] = {"runs": rs,
+                        "median_wall_s": statistics.median(r["wall_s"] for r in rs),
+                        "median_cpu_s": statistics.median(r["cpu_s"] for r in rs),
+                        "all_exit_0": all(r["exit_code"] == 0 for r in rs)}
+    return result
 
 
 class OutOfBudget(Exception):
@@ -227,11 +271,24 @@ def main(argv=None) -> int:
     ap.add_argument("--max-evaluations", type=int, default=4000,
                     help="scipy's budget of simulator runs in (a) from the start "
                          "(Jacobian columns count)")
+    ap.add_argument("--runs", type=int, default=3,
+                    help="cold and warm runs of issue #28's command (0 skips them)")
     ap.add_argument("--skip-end-to-end", action="store_true",
                     help="also skips (a) from the start, which needs identify's result")
     ap.add_argument("--skip-joint", action="store_true")
     args = ap.parse_args(argv)
     out = {"jax": jax.__version__, "scipy": scipy.__version__, "cpus": os.cpu_count()}
+    if args.runs > 0:
+        out["cold_and_warm"] = cw = cold_and_warm(args.runs)
+        for name in ("cold", "warm"):
+            c = cw[name]
+            walls = ", ".join(f"{r['wall_s']:.1f}" for r in c["runs"])
+            print(f"identify {name}: median {c['median_wall_s']:.1f} s wall, "
+                  f"{c['median_cpu_s']:.1f} s CPU over {args.runs} runs ({walls} s; "
+                  f"target ≤ 20 s: "
+                  f"{'PASS' if c['median_wall_s'] <= 20 and c['all_exit_0'] else 'MISS'})",
+                  flush=True)
+        write_json(args.json, out)
     if not args.skip_end_to_end:
         out["end_to_end"] = e = end_to_end()
         fitted = e.pop("params")

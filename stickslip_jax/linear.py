@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -124,7 +125,7 @@ class StickModes:
     antiresonance_damping_ratio: float
 
 
-def _contact_damping(friction, drive: DriveContext) -> float:
+def _contact_damping(friction, drive: DriveContext):
     """``dFf/dẋ`` [N·s/m] at ``z = 0``, ``ẋ = 0`` with ``ż = z_rate(0, ẋ)`` (stick)."""
 
     def ff(v):
@@ -132,7 +133,14 @@ def _contact_damping(friction, drive: DriveContext) -> float:
         return friction.force(z, friction.z_rate(z, v, drive), v, drive)
 
     _, slope = jax.jvp(ff, (jnp.asarray(0.0, dtype=float),), (jnp.asarray(1.0, dtype=float),))
-    return float(slope)
+    return slope
+
+
+@eqx.filter_jit
+def _contact(friction, drive: DriveContext):
+    # One compiled program: operation by operation, the law's functions each compiled
+    # their own (0.8 s on the first call, issue #28).
+    return friction.stiffness(drive), _contact_damping(friction, drive)
 
 
 def stick_chain(actuator: Actuator, drive: DriveContext | None = None) -> StickChain:
@@ -140,10 +148,11 @@ def stick_chain(actuator: Actuator, drive: DriveContext | None = None) -> StickC
     if drive is None:
         drive = DriveContext.make()
     p, s, fr = actuator.piezo, actuator.slider, actuator.friction
+    kc, cc = _contact(fr, drive)
     return StickChain(
         Mp=float(p.Mp), Dp=float(p.Dp), Kp=float(p.Kp),
         Ms=float(s.Ms), Ds=float(s.Ds), k_load=float(s.k_load),
-        kc=float(fr.stiffness(drive)), cc=_contact_damping(fr, drive),
+        kc=float(kc), cc=float(cc),
     )
 
 

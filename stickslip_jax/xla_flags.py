@@ -1,29 +1,35 @@
 """XLA settings that must be made before JAX starts its backends (``XLA_FLAGS``).
 
-Why the simulator wants one of them: XLA on a CPU runs a compiled program as a
-sequence of kernels ("thunks"), each a function call with some bookkeeping, and a
-``while`` loop runs its body's kernels once per iteration. The simulator's RK4
-sub-step is a handful of scalar kernels (one per stage, one for the saturation, the
-loop counter and test), so the per-kernel overhead, not the arithmetic, sets its
-speed: about 370 ns per sub-step, 150 ms for a 1 s trace at 25 kHz and 16 sub-steps,
-2.6x a scalar numba loop of the same scheme. XLA compiles a *small* loop, one whose
-body touches fewer bytes than ``xla_cpu_small_while_loop_byte_threshold`` (1 kB by
-default), into a single kernel with a native loop inside. Raising that threshold to
-:data:`SMALL_LOOP_BYTES` takes in the sub-step loop of a simulation and of its
-forward-mode derivatives (measured on the 2-core CPU, after compilation, same
-numbers to rounding):
+Why the simulator wants them: XLA on a CPU runs a compiled program as a sequence of
+kernels ("thunks"), each a function call with some bookkeeping, and a ``while`` loop
+runs its body's kernels once per iteration. The simulator's RK4 sub-step is a handful
+of scalar kernels (one per stage, one for the saturation, the loop counter and test),
+so the per-kernel overhead, not the arithmetic, sets its speed: about 370 ns per
+sub-step, 150 ms for a 1 s trace at 25 kHz and 16 sub-steps, 2.6x a scalar numba loop
+of the same scheme. XLA compiles a *small* loop, one whose cost analysis counts fewer
+bytes accessed than ``xla_cpu_small_while_loop_byte_threshold`` (1 kB by default),
+into a single kernel with a native loop inside, unless the loop holds an operation
+that such a kernel cannot call (a custom call, a sort, a library fusion).
+:func:`fast_cpu_loops` does two things:
 
-- one 1 s trace (25 000 samples): 145 ms by default, 45 ms with 100 kB;
-- the identification residual over the 17 fixture recordings: 126 ms, 46 ms;
-- its Jacobian with 1, 2 or 21 tangents in one vmapped pass: 0.43, 0.82, 1.19 s by
-  default; 0.17, 0.28, 0.88 s with 100 kB;
-- the same with all 42 tangents in one pass: 1.40 s, 1.60 s.
+- It raises the threshold to :data:`SMALL_LOOP_BYTES`, so that every loop counts as
+  small. At 100 kB (the setting until issue #28) the sub-step loop of a plain
+  simulation was taken in (a 1 s trace: 145 ms by default, 45 ms), but not the loops
+  of a forward-mode pass with several tangents, whose counted bytes grow with the
+  tangents and the trip counts.
+- It turns off XLA's YNNPACK library fusions (``xla_cpu_experimental_ynn_fusion_type``
+  empty): a reduction or product over a batched axis inside a loop (the PI output
+  ``weights·plays`` with vmapped tangents) became such a fusion, which keeps every
+  loop around it out of the native kernel.
 
-Only very wide vmapped tangents lose a little, and the fits do not build those in one
-pass on a multi-core CPU (``identify/solve.py`` shares the columns among threads).
-``benchmarks/bench_simulator.py`` records the setting it ran with. The option
-concerns the CPU backend only; XLA does not pass ``xla_*`` backend options to LLVM,
-and accelerators' compilers ignore it.
+Measured on the 2-core CPU (issue #28), after compilation, same numbers to rounding:
+the identification's Jacobian of one 0.1 s recording (2500 samples) with 21 vmapped
+tangents 65 ms (175 ms with the 100 kB setting; 6 ms with one tangent, 4 ms without);
+the gradient of a 0.2 s trace over five parameters (default adjoint) 73 ms (180 ms);
+17 fixture recordings vmapped in one pass 0.15 s (0.24 s); a plain simulation and the
+17 recordings mapped one after the other unchanged (63 and 61 ms). The options concern
+the CPU backend only; XLA does not pass ``xla_*`` backend options to LLVM, and
+accelerators' compilers ignore them.
 
 The library itself changes nothing global on import. The command line calls
 :func:`fast_cpu_loops` (``cli/common.py``); in a script or notebook, call it before
@@ -40,11 +46,16 @@ import os
 import sys
 import warnings
 
-SMALL_LOOP_BYTES = 100_000
-"""The small-loop threshold [bytes] :func:`fast_cpu_loops` sets (XLA's default: 1000).
-Chosen from 3e4, 1e5 and 1e9 by the timings in the module docstring: 3e4 leaves a 1 s
-trace's loop out (59 ms), 1e9 also takes in the batched 17-recording loop, which then
-runs slower (115 ms per recording against 77 ms)."""
+SMALL_LOOP_BYTES = 10**15
+"""The small-loop threshold [bytes] :func:`fast_cpu_loops` sets (XLA's default: 1000):
+every loop of the simulator and of its forward-mode derivatives, whatever the
+tangents and the trace length (a 10 s trace with 42 tangents counts under 1e13). It
+was 100 kB until issue #28; 1e9 then left the loops of a pass with 8 or more tangents
+out, and a larger value changed neither a plain simulation nor a batch of them."""
+
+LIBRARY_FUSIONS = "xla_cpu_experimental_ynn_fusion_type"
+"""The XLA option that lists the YNNPACK library fusions; :func:`fast_cpu_loops` sets
+it empty (none), see the module docstring."""
 
 _OPTION = "xla_cpu_small_while_loop_byte_threshold"
 
@@ -83,21 +94,25 @@ def add_xla_flag(name: str, value) -> bool:
 
 
 def fast_cpu_loops(threshold_bytes: int = SMALL_LOOP_BYTES) -> bool:
-    """Let XLA compile the simulator's small loops into single native-loop kernels.
+    """Let XLA compile the simulator's loops into single native-loop kernels.
 
-    Sets ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=N`` in
-    ``XLA_FLAGS`` (see the module docstring: about 3x faster simulations and
-    forward-mode Jacobians of a few columns on a CPU). Must run before JAX's first
-    computation in the process; ``import stickslip_jax`` does not start JAX.
+    Sets ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=N`` and
+    ``--xla_cpu_experimental_ynn_fusion_type=`` (no library fusions) in ``XLA_FLAGS``
+    (see the module docstring: about 3x faster simulations, and forward-mode Jacobians
+    of many columns, on a CPU). Must run before JAX's first computation in the
+    process; ``import stickslip_jax`` does not start JAX.
 
-    Returns True when the setting is in place. Returns False, with a warning, when it
+    Returns True when the threshold is in place. Returns False, with a warning, when it
     comes too late (JAX has already run something: restart the kernel and call this
-    first), and leaves ``XLA_FLAGS`` alone when it already holds backend options of
-    the user's own (returning True if those include the threshold).
+    first), and leaves the threshold alone when ``XLA_FLAGS`` already holds backend
+    options of the user's own (returning True if those include it); a library-fusion
+    setting of the user's own is kept too.
     """
     threshold_bytes = int(threshold_bytes)
     if threshold_bytes < 0:
         raise ValueError(f"threshold_bytes must be ≥ 0, got {threshold_bytes}")
+    if not backends_started():
+        add_xla_flag(LIBRARY_FUSIONS, "")
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_backend_extra_options" in flags:
         return _OPTION in flags

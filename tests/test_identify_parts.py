@@ -247,3 +247,134 @@ def test_a_jacobian_whose_columns_are_shared_among_threads_is_the_whole_jacobian
     monkeypatch.setenv("STICKSLIP_JACOBIAN_THREADS", "0")
     with pytest.raises(ValueError, match="STICKSLIP_JACOBIAN_THREADS"):
         jacobian_threads()
+
+
+def test_transform_derivatives_in_numpy_are_jaxs():
+    act = ss.lu2015_slc1720()
+    names = ["Mp", "zba_ratio", "rho1", "pi_weights", "z_ba_forward"]
+    pmap = ParameterMap.make(act, names)
+    theta = np.random.default_rng(4).normal(0, 0.5, pmap.size)
+
+    def flat(th):
+        return jnp.concatenate([jnp.atleast_1d(v) for v in jax.tree.leaves(
+            eqx.filter(pmap.actuator(th), mask))])
+
+    from stickslip_jax.identify.sensitivities import perturbed_mask
+
+    mask = perturbed_mask(act, names)
+    # The actuator, its values and their derivatives in numpy, as JAX has them.
+    np_act, jax_act = pmap.actuator(theta, xp=np), pmap.actuator(jnp.asarray(theta))
+    for a, b in zip(jax.tree.leaves(np_act), jax.tree.leaves(jax_act), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-13, atol=0)
+    want = np.asarray(jax.jacfwd(flat)(jnp.asarray(theta)))  # (leaf values, θ)
+    got = np.concatenate([x.reshape(pmap.size, -1) for x in
+                          jax.tree.leaves(pmap.leaf_tangents(theta, mask))], axis=1).T
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-300)
+    labels = np.asarray(jax.jacfwd(lambda th: jnp.concatenate(
+        [jnp.atleast_1d(p.to_physical(th[s])) for p, s in
+         zip(pmap.free, pmap.slices().values(), strict=True)]))(jnp.asarray(theta)))
+    np.testing.assert_allclose(pmap.value_jacobian(theta), labels, rtol=1e-12, atol=1e-300)
+
+
+def test_residual_jacobian_by_the_chain_rule_is_the_jvp_of_the_residual(fixtures_dir):
+    from stickslip_jax.identify.residuals import TraceResiduals
+
+    recs = [ss.load_recording(fixtures_dir / "identification" / f"{n}.csv")
+            for n in ("step_40V", "saw_40V_500Hz_bwd", "sine_40V_50Hz")]
+    data = Dataset.from_recordings(recs)
+    pmap = ParameterMap.make(ss.lu2015_slc1720(), ["Mp"])
+    rng = np.random.default_rng(5)
+    q = np.asarray(data.measured) + 1e-9 * rng.standard_normal(data.measured.shape)
+    dq = 1e-8 * rng.standard_normal(data.measured.shape + (3,))
+    # Every term: time traces, log-PSD of the step, step lengths; whitened; in metres.
+    for options in (dict(w_psd=0.01, w_steps=1.0), dict(whiten=True), dict(in_metres=True)):
+        res = TraceResiduals.make(pmap, data, **options)
+        r, jac = res.jacobian_from_outputs(q, dq)
+        r_jax, jac_jax = jax.vmap(lambda d, res=res: jax.jvp(res.from_output, (jnp.asarray(q),),
+                                                            (d,)),
+                                  in_axes=2, out_axes=(None, 1))(jnp.asarray(dq))
+        np.testing.assert_allclose(r, np.asarray(r_jax), rtol=1e-10,
+                                   atol=1e-12 * np.max(np.abs(r_jax)))
+        np.testing.assert_allclose(jac, np.asarray(jac_jax), rtol=1e-10,
+                                   atol=1e-12 * np.max(np.abs(jac_jax)))
+
+
+def test_shared_programs_give_the_steps_residuals_and_jacobians(fixtures_dir):
+    from stickslip_jax.identify.residuals import TraceResiduals
+    from stickslip_jax.identify.sensitivities import (
+        RecordingPrograms,
+        StepJacobian,
+        perturbed_mask,
+    )
+    from stickslip_jax.identify.solve import value_and_jacobian
+
+    recs = [ss.load_recording(fixtures_dir / "identification" / f"{n}.csv")
+            for n in ("saw_40V_500Hz_bwd", "step_40V", "saw_20V_500Hz_fwd")]
+    data = Dataset.from_recordings(recs)
+    act = ss.lu2015_slc1720()
+    union = ["Mp", "Kp", "rho0", "z_ba_forward", "z_ba_backward"]
+    plan = ss.plan_steps(act, data.dt, substeps=3)
+    mask = perturbed_mask(act, union)
+    assert RecordingPrograms(data, act, mask, threads=2).width == 3  # 5 quantities
+    # Two tangents per call: the step's three columns take two shares.
+    programs = RecordingPrograms(data, act, mask, threads=2, width=2)
+    rows = [0, 2]  # the sawtooths, as a step would pick them
+    sub = Dataset.from_recordings([recs[b] for b in rows])
+    pmap = ParameterMap.make(act, ["Kp", "z_ba_forward", "z_ba_backward"])
+    res = TraceResiduals.make(pmap, sub, stepping=plan, w_steps=1.0)
+    theta = np.array([0.05, -0.1, 0.2])
+    r, jac = StepJacobian(res, programs, rows)(theta)
+    r_ref, jac_ref = value_and_jacobian(res, jnp.asarray(theta))
+    np.testing.assert_allclose(r, r_ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(r_ref)))
+    np.testing.assert_allclose(jac, jac_ref, rtol=1e-8, atol=1e-10 * np.max(np.abs(jac_ref)))
+    # One column (2·1 ≤ width): one plain JVP per recording, the other program.
+    res1 = TraceResiduals.make(ParameterMap.make(act, ["z_ba_backward"]), sub, stepping=plan,
+                               whiten=True)
+    r1, jac1 = StepJacobian(res1, programs, rows)(np.array([0.1]))
+    r1_ref, jac1_ref = value_and_jacobian(res1, jnp.array([0.1]))
+    np.testing.assert_allclose(r1, r1_ref, rtol=1e-9, atol=1e-12 * np.max(np.abs(r1_ref)))
+    np.testing.assert_allclose(jac1, jac1_ref, rtol=1e-8,
+                               atol=1e-10 * np.max(np.abs(jac1_ref)))
+    # The traces alone, every recording, padded with the last real value.
+    q = programs.simulate(act, plan)
+    q_ref = np.asarray(ss.simulate_batch(act, data.voltages, dt=data.dt, drives=data.drives,
+                                         stepping=plan))
+    np.testing.assert_allclose(q * data.mask, q_ref * data.mask, rtol=1e-12, atol=1e-20)
+    last = int(data.mask[1].sum()) - 1  # the step, the shortest recording
+    np.testing.assert_array_equal(q[1, last:], q[1, last])
+
+
+def test_levenberg_marquardt_steps_are_optimistixs():
+    # The numpy steps against optimistix's LevenbergMarquardt driven one step at a time,
+    # on a problem with rejected steps (Rosenbrock) and a damping started low and high.
+    import optimistix as optx
+
+    from stickslip_jax.identify.solve import LevenbergMarquardtSteps
+
+    def fn(y, _):
+        return jnp.stack([10 * (y[1] - y[0] ** 2), 1 - y[0], 0.1 * y[2] * y[0] - 0.2]), None
+
+    y0 = jnp.array([-1.2, 1.0, 0.5])
+    rejected = 0
+    for damping in (1.0, 1e-6):
+        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-8, norm=optx.rms_norm)
+        state = solver.init(fn, y0, None, {}, jax.eval_shape(lambda: fn(y0, None)[0]), None,
+                            frozenset())
+        state = eqx.tree_at(lambda st: st.search_state.step_size, state,
+                            jnp.asarray(1.0 / damping))
+        ours = LevenbergMarquardtSteps(y0, step_size=1.0 / damping, rtol=1e-6, atol=1e-8)
+        y = y0
+        for _ in range(60):
+            value, jac = fn(ours.y_eval, None)[0], jax.jacfwd(lambda v: fn(v, None)[0])(
+                ours.y_eval)
+            rejected += not ours.step(np.asarray(value), np.asarray(jac))
+            y, state, _ = solver.step(fn, y, None, {}, state, frozenset())
+            assert int(state.num_accepted_steps) == ours.accepted
+            np.testing.assert_allclose(ours.y_eval, np.asarray(state.y_eval), rtol=1e-10,
+                                       atol=1e-13)
+            np.testing.assert_allclose(ours.y, np.asarray(y), rtol=1e-10, atol=1e-13)
+            assert ours.terminate == bool(state.terminate)
+            if ours.terminate:
+                break
+        assert ours.terminate
+    assert rejected > 0  # the trust region's rejections took part

@@ -74,6 +74,7 @@ def test_fast_cpu_loops_sets_the_threshold_in_a_fresh_process():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, timeout=120, check=True).stdout.strip()
     assert out == ("True --xla_force_host_platform_device_count=2 "
+                   "--xla_cpu_experimental_ynn_fusion_type= "
                    "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=2048")
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import typer
 from typer.core import TyperGroup
 
+from ..blas_threads import limit_blas_threads
 from ..xla_flags import add_xla_flag, fast_cpu_loops
 
 EXIT_INTERNAL = 1
@@ -53,8 +54,9 @@ def fast_cpu_loops_quietly() -> None:
 
 def setup_jax(*, all_cpu_cores: bool = False) -> None:
     """float64, XLA's native compilation of small loops on a CPU
-    (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`), and a persistent compilation
-    cache, so a second run skips compiling.
+    (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`), a persistent compilation
+    cache, so a second run skips compiling, and BLAS on one thread
+    (:mod:`~stickslip_jax.blas_threads`; unless ``OPENBLAS_NUM_THREADS`` says otherwise).
 
     The cache lives in ``$STICKSLIP_CACHE_DIR`` (default ``~/.cache/stickslip_jax``);
     set ``STICKSLIP_CACHE_DIR=off`` to disable it. ``all_cpu_cores``: see
@@ -63,6 +65,10 @@ def setup_jax(*, all_cpu_cores: bool = False) -> None:
     fast_cpu_loops_quietly()
     if all_cpu_cores:
         use_all_cpu_cores()
+    if "OPENBLAS_NUM_THREADS" not in os.environ:
+        import numpy  # noqa: F401 - loads numpy's OpenBLAS (scipy's comes with stickslip_jax)
+
+        limit_blas_threads(1)
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -71,7 +77,10 @@ def setup_jax(*, all_cpu_cores: bool = False) -> None:
         with contextlib.suppress(Exception):  # a read-only home must not stop the tool
             Path(cache).mkdir(parents=True, exist_ok=True)
             jax.config.update("jax_compilation_cache_dir", cache)
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+            # Every program, the small ones too: identify compiles ~70 of 0.05 to 0.5 s
+            # (its steps' Levenberg-Marquardt steps, single operations), about 3 s
+            # that a second run would otherwise compile again (issue #28).
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> typer.Exit:

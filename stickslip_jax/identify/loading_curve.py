@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -63,23 +62,24 @@ class LoadingCurve:
 def loading_curve_uncertainty(pmap: ParameterMap, theta, unc: Uncertainty,
                               u_top: float) -> LoadingCurve | None:
     """The fitted loading curve up to ``u_top`` [V] (the largest recorded voltage) with
-    errors from ``unc`` (whose θ is ``pmap``'s); None when the PI weights are not free."""
+    errors from ``unc`` (whose θ is ``pmap``'s); None when the PI weights are not free.
+
+    Both the strokes and the slopes are linear in the weights, so their gradients in θ
+    are those maps times the weights' (:meth:`~.parameters.ParameterMap.value_jacobian`),
+    in numpy."""
     if "pi_weights" not in pmap.names:
         return None
-    theta = jnp.asarray(theta, dtype=float)
-    thresholds = np.asarray(pmap.actuator(theta).hysteresis.thresholds, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    thresholds = np.asarray(pmap.start.hysteresis.thresholds, dtype=float)  # never fitted
     knots = np.append(thresholds[1:][thresholds[1:] < u_top], u_top)
-
-    def strokes(th):
-        return loading_curve(thresholds, pmap.actuator(th).hysteresis.weights, knots)
-
-    def slopes(th):
-        return jnp.cumsum(pmap.actuator(th).hysteresis.weights)[: knots.size]
-
+    rows = pmap.slices()["pi_weights"]
+    weights = pmap.physical(theta)["pi_weights"]
+    dw = pmap.value_jacobian(theta)[rows]  # (weights, θ)
+    stroke_map = np.maximum(knots[:, None] - thresholds[None, :], 0.0)  # Γ = map·w
+    slope_map = np.tril(np.ones((knots.size, thresholds.size)))  # cumulative sums
     out = []
-    for fn in (strokes, slopes):
-        value = np.asarray(fn(theta))
-        grad = np.asarray(jax.jacfwd(fn)(theta))
-        se, det = unc.of(grad, value)
+    for linear in (stroke_map, slope_map):
+        value = linear @ weights
+        se, det = unc.of(linear @ dw, value)
         out += [value, se, det]
     return LoadingCurve(knots, *out)

@@ -136,27 +136,62 @@ class FreeParameter:
     start: np.ndarray  # physical start value(s)
     scale: float | None = None  # θ unit of linear/softplus kinds
 
-    def to_physical(self, theta):
-        """Physical value(s) from the slice ``theta`` of the parameter vector."""
-        start = jnp.asarray(self.start)
+    def _softplus_scale(self) -> tuple[float, float]:
+        """``(scale, θ0)`` of the softplus kind: value = scale·softplus(θ + θ0)."""
+        scale = float(self.start) if float(self.start) > 0 else (self.scale or 1.0)
+        theta0 = np.log(np.expm1(float(self.start) / scale)) if float(self.start) > 0 \
+            else -20.0
+        return scale, theta0
+
+    def to_physical(self, theta, *, xp=jnp):
+        """Physical value(s) from the slice ``theta`` of the parameter vector; ``xp`` is
+        ``jax.numpy`` (traceable) or ``numpy`` (for a concrete θ: nothing compiled)."""
+        start = xp.asarray(self.start)
+        theta = xp.asarray(theta)
         if self.kind == "log":
-            value = start * jnp.exp(theta)
+            value = start * xp.exp(theta)
         elif self.kind == "logit":
-            value = jax.nn.sigmoid(theta + jnp.log(start / (1.0 - start)))
+            value = _sigmoid(theta + xp.log(start / (1.0 - start)), xp)
         elif self.kind == "linear":
             value = start + self.scale * theta
         elif self.kind == "softplus":
-            scale = float(self.start) if float(self.start) > 0 else (self.scale or 1.0)
-            theta0 = np.log(np.expm1(float(self.start) / scale)) if float(self.start) > 0 \
-                else -20.0
-            value = scale * jax.nn.softplus(theta + theta0)
+            scale, theta0 = self._softplus_scale()
+            value = scale * (jax.nn.softplus(theta + theta0) if xp is jnp
+                             else np.logaddexp(theta + theta0, 0.0))
         elif self.kind == "pi_cumlog":
-            sums0 = jnp.cumsum(start)
-            sums = sums0 * jnp.exp(theta)
-            value = jnp.diff(sums, prepend=0.0)
+            sums0 = xp.cumsum(start)
+            sums = sums0 * xp.exp(theta)
+            value = xp.diff(sums, prepend=0.0)
         else:  # pragma: no cover - guarded by _kind
             raise ValueError(self.kind)
         return value if self.size > 1 else value.reshape(())
+
+    def derivative(self, theta) -> np.ndarray:
+        """``∂value_i/∂θ_j`` (size, size) at the slice ``theta`` [value unit per unit of
+        θ], in numpy (the transforms' derivatives written out)."""
+        theta = np.atleast_1d(np.asarray(theta, dtype=float))
+        start = np.atleast_1d(np.asarray(self.start, dtype=float))
+        if self.kind == "log":
+            return np.diag(start * np.exp(theta))
+        if self.kind == "logit":
+            s = _sigmoid(theta + np.log(start / (1.0 - start)), np)
+            return np.diag(s * (1.0 - s))
+        if self.kind == "linear":
+            return np.diag(np.full(theta.size, float(self.scale)))
+        if self.kind == "softplus":
+            scale, theta0 = self._softplus_scale()
+            return np.diag(scale * _sigmoid(theta + theta0, np))
+        if self.kind == "pi_cumlog":
+            # w_i = s_i − s_(i−1) with s_j = s0_j·exp(θ_j): ∂w_i/∂θ_j = s_j (δ_ij − δ_(i−1)j)
+            sums = np.cumsum(start) * np.exp(theta)
+            d = np.diag(sums)
+            d[np.arange(1, sums.size), np.arange(sums.size - 1)] = -sums[:-1]
+            return d
+        raise ValueError(self.kind)  # pragma: no cover - guarded by _kind
+
+
+def _sigmoid(x, xp):
+    return jax.nn.sigmoid(x) if xp is jnp else 1.0 / (1.0 + np.exp(-x))
 
 
 PI_SUM_FLOOR = 1e-9
@@ -239,27 +274,46 @@ class ParameterMap(eqx.Module):
         return out
 
     def zeros(self):
-        return jnp.zeros(self.size)
+        return jnp.asarray(np.zeros(self.size))  # (no compiled operation for the shape)
 
-    def actuator(self, theta) -> Actuator:
-        """The actuator at ``theta``."""
+    def actuator(self, theta, *, xp=jnp) -> Actuator:
+        """The actuator at ``theta``; ``xp=numpy`` evaluates the transforms in numpy (for
+        a concrete θ: nothing compiled) and sets the leaves as JAX arrays."""
         act = self.start
         sl = self.slices()
         for p, getter in zip(self.free, self.getters, strict=True):
-            value = p.to_physical(theta[sl[p.name]])
-            act = eqx.tree_at(getter, act, value)
+            value = p.to_physical(theta[sl[p.name]], xp=xp)
+            act = eqx.tree_at(getter, act, value if xp is jnp else jnp.asarray(value))
         return act
 
     def physical(self, theta) -> dict[str, np.ndarray]:
-        """Physical values of the free parameters at ``theta``."""
+        """Physical values of the free parameters at ``theta`` (numpy)."""
         sl = self.slices()
-        return {p.name: np.asarray(p.to_physical(theta[sl[p.name]])) for p in self.free}
+        theta = np.asarray(theta, dtype=float)
+        return {p.name: np.asarray(p.to_physical(theta[sl[p.name]], xp=np)) for p in self.free}
 
     def value_jacobian(self, theta) -> np.ndarray:
-        """d(physical values, flattened in label order) / dθ, a square matrix."""
-        def flat(th):
-            sl = self.slices()
-            return jnp.concatenate([jnp.atleast_1d(p.to_physical(th[sl[p.name]]))
-                                    for p in self.free])
+        """d(physical values, flattened in label order) / dθ, a square matrix (block
+        diagonal, one block per free parameter: :meth:`FreeParameter.derivative`)."""
+        sl = self.slices()
+        theta = np.asarray(theta, dtype=float)
+        out = np.zeros((self.size, self.size))
+        for p in self.free:
+            out[sl[p.name], sl[p.name]] = p.derivative(theta[sl[p.name]])
+        return out
 
-        return np.asarray(jax.jacfwd(flat)(jnp.asarray(theta)))
+    def leaf_tangents(self, theta, mask):
+        """The derivatives of the ``mask`` leaves of :meth:`actuator` along each
+        coordinate of θ: a pytree of the mask's leaves (``eqx.filter(actuator, mask)``)
+        with a leading axis of θ's size on each leaf (zeros where a leaf is held), in
+        numpy."""
+        sl = self.slices()
+        theta = np.asarray(theta, dtype=float)
+        out = jax.tree.map(lambda x: np.zeros((self.size,) + np.shape(x)),
+                           eqx.filter(self.start, mask))
+        for p, getter in zip(self.free, self.getters, strict=True):
+            rows = np.zeros((self.size,) + np.shape(getter(self.start)))
+            rows[sl[p.name]] = p.derivative(theta[sl[p.name]]).T.reshape(
+                (p.size,) + rows.shape[1:])
+            out = eqx.tree_at(getter, out, rows)
+        return out

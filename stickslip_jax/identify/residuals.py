@@ -18,6 +18,7 @@ from ..simulate import _model_output, checked_batching, over_rows, plan_steps
 from ..stepping import Stepping, StepPlan
 from .dataset import Dataset
 from .parameters import ParameterMap
+from .sensitivities import RecordingPrograms
 
 
 def default_batching() -> str:
@@ -33,20 +34,30 @@ def dataset_plan(actuator, data: Dataset,
                       samples=int(np.prod(data.voltages.shape)))
 
 
-def numerical_error(actuator, data: Dataset, plan: StepPlan, q: np.ndarray | None = None
-                    ) -> np.ndarray:
+def numerical_error(actuator, data: Dataset, plan: StepPlan, q: np.ndarray | None = None,
+                    *, programs=None) -> np.ndarray:
     """A-posteriori numerical error of ``simulate_dataset`` at ``plan``, per recording:
     RMS over its real samples, offset removed [m].
 
     Step doubling: the set again with twice the coarse sub-steps; for the fourth-order
     scheme the coarser trace's error is 16/15 of their difference. ``q``: the outputs at
-    ``plan`` when already computed (one simulation saved).
+    ``plan`` when already computed (one simulation saved). ``programs``: the
+    :class:`~.sensitivities.RecordingPrograms` of ``data`` to simulate with (on a CPU
+    one is made here: one compiled recording at a time, not one loop per length bucket;
+    on accelerators :func:`simulate_dataset` batches the recordings).
     """
-    if q is None:
-        q = simulate_dataset(actuator, data, plan=plan)
-    q2 = simulate_dataset(actuator, data, plan=plan.doubled())
+    if programs is None and default_batching() == "map":
+        programs = RecordingPrograms(data)
+    if programs is None:
+        if q is None:
+            q = simulate_dataset(actuator, data, plan=plan)
+        q2 = simulate_dataset(actuator, data, plan=plan.doubled())
+    else:
+        if q is None:
+            q = programs.simulate(actuator, plan)
+        q2 = programs.simulate(actuator, plan.doubled())
     mask = np.asarray(data.mask)
-    diff = np.asarray(offset_removed(jnp.asarray(q) - q2, jnp.asarray(mask)))
+    diff = offset_removed(np.asarray(q) - np.asarray(q2), mask, xp=np)
     n = mask.sum(axis=1)
     return np.sqrt(np.sum(diff * diff, axis=1) / n) * 16.0 / 15.0
 
@@ -91,18 +102,18 @@ def simulate_dataset(actuator, data: Dataset, *, plan: StepPlan | None = None,
     return q if order == sorted(order) else q[np.argsort(order)]
 
 
-def offset_removed(diff, mask):
+def offset_removed(diff, mask, *, xp=jnp):
     """``diff`` minus its masked mean along the last axis (best constant offset)."""
-    n = jnp.sum(mask, axis=-1, keepdims=True)
-    return (diff - jnp.sum(diff * mask, axis=-1, keepdims=True) / n) * mask
+    n = xp.sum(mask, axis=-1, keepdims=True)
+    return (diff - xp.sum(diff * mask, axis=-1, keepdims=True) / n) * mask
 
 
 def nrmse_per_recording(q_sim, data: Dataset) -> np.ndarray:
     """NRMSE of each recording (offset removed), as a numpy array [-]."""
-    mask = jnp.asarray(data.mask)
-    r = offset_removed(jnp.asarray(q_sim) - jnp.asarray(data.measured), mask)
-    n = jnp.sum(mask, axis=-1)
-    return np.asarray(jnp.sqrt(jnp.sum(r**2, axis=-1) / n) / jnp.asarray(data.scale))
+    mask = np.asarray(data.mask)
+    r = offset_removed(np.asarray(q_sim) - np.asarray(data.measured), mask, xp=np)
+    n = np.sum(mask, axis=-1)
+    return np.sqrt(np.sum(r**2, axis=-1) / n) / np.asarray(data.scale)
 
 
 def recording_noise(data: Dataset) -> tuple[float, ...]:
@@ -236,23 +247,51 @@ class TraceResiduals(eqx.Module):
     def __call__(self, theta, args=None):
         return self.from_output(self.simulate(theta))
 
-    def from_output(self, q):
-        """The residual vector for simulated outputs ``q`` (B, T) [m]."""
+    def from_output(self, q, *, xp=jnp):
+        """The residual vector for simulated outputs ``q`` (B, T) [m]; ``xp`` is
+        ``jax.numpy`` (traceable) or ``numpy`` (for concrete outputs)."""
         d = self.data
-        mask = jnp.asarray(d.mask)
-        n = jnp.sum(mask, axis=-1, keepdims=True)
-        scale = jnp.asarray(d.scale)[:, None]
-        diff = offset_removed(q - jnp.asarray(d.measured), mask)
-        if self.in_metres:  # raw sample residuals [m]
-            return diff.reshape(-1)
-        if self.whiten:  # in units of each recording's noise: maximum likelihood
-            return (diff / jnp.asarray(self.noise_m)[:, None]).reshape(-1)
-        parts = [(self.w_time * diff / (scale * jnp.sqrt(n))).reshape(-1)]
+        diff = offset_removed(q - xp.asarray(d.measured), xp.asarray(d.mask), xp=xp)
+        parts = [self._time_part(diff, xp).reshape(-1)]
+        if self.in_metres or self.whiten:
+            return parts[0]
         if self.w_psd > 0:
-            parts += self._psd_terms(q)
+            parts += self._psd_terms(q, xp)
         if self.w_steps > 0:
-            parts += self._step_terms(q)
-        return jnp.concatenate(parts)
+            parts += self._step_terms(q, xp)
+        return xp.concatenate(parts)
+
+    def jacobian_from_outputs(self, q, dq) -> tuple[np.ndarray, np.ndarray]:
+        """``(residual (N,), ∂residual/∂θ (N, k))`` from simulated outputs ``q`` (B, T)
+        [m] and their derivatives ``dq`` (B, T, k) [m per unit of θ], in numpy: the
+        chain rule through :meth:`from_output` (the time and step-length terms are
+        linear in q; the log-PSD term's derivative is written out in
+        :func:`psd_and_tangents`)."""
+        d = self.data
+        q = np.asarray(q, dtype=float)
+        dq = np.asarray(dq, dtype=float)
+        b, t, k = dq.shape
+        # The offset removal runs along the samples: the k columns go in front of them.
+        ddiff = offset_removed(np.moveaxis(dq, 2, 1), np.asarray(d.mask)[:, None, :], xp=np)
+        parts = [np.moveaxis(self._time_part(ddiff, np), 1, 2).reshape(b * t, k)]
+        if not (self.in_metres or self.whiten):
+            if self.w_psd > 0:
+                parts += self._psd_terms(q, np, dq)
+            if self.w_steps > 0:
+                parts += self._step_terms(dq, np, tangent=True)
+        return np.asarray(self.from_output(q, xp=np)), np.concatenate(parts)
+
+    def _time_part(self, diff, xp):
+        """The time-domain rows for offset-removed differences ``diff`` (B, …, T) [m]
+        (the residual's, or their derivatives along leading axes after B)."""
+        d = self.data
+        shape = (-1,) + (1,) * (diff.ndim - 1)
+        if self.in_metres:  # raw sample residuals [m]
+            return diff
+        if self.whiten:  # in units of each recording's noise: maximum likelihood
+            return diff / xp.asarray(self.noise_m).reshape(shape)
+        n = xp.sum(xp.asarray(d.mask), axis=-1).reshape(shape)
+        return self.w_time * diff / (xp.asarray(d.scale).reshape(shape) * xp.sqrt(n))
 
     def _time_rows(self, x):
         """The time-domain rows of a residual-shaped array ``x`` (vector or Jacobian),
@@ -287,7 +326,9 @@ class TraceResiduals(eqx.Module):
         rows = rows * factor.reshape((-1,) + (1,) * (rows.ndim - 1))
         return rows.reshape((-1,) + rows.shape[2:])
 
-    def _psd_terms(self, q):
+    def _psd_terms(self, q, xp=jnp, dq=None):
+        """The log-PSD rows of each step response; with ``dq`` (B, T, k) (numpy) their
+        derivatives (rows, k) instead."""
         out = []
         for b, rec in enumerate(self.data.recordings):
             if rec.drive.waveform != "step":
@@ -295,16 +336,47 @@ class TraceResiduals(eqx.Module):
             bands, _ = band_matrix(rec.n, rec.dt)
             floor = noise_floor_psd(rec.position_m, rec.dt)
             lp_meas = band_log_psd(rec.position_m, rec.dt, bands, xp=np)
-            lp_sim = band_log_psd(q[b, : rec.n], rec.dt, bands, floor=floor)
-            out.append(self.w_psd * (lp_sim - lp_meas) / np.sqrt(lp_meas.size))
+            if dq is None:
+                lp_sim = band_log_psd(q[b, : rec.n], rec.dt, bands, floor=floor, xp=xp)
+                out.append(self.w_psd * (lp_sim - lp_meas) / np.sqrt(lp_meas.size))
+                continue
+            psd, dpsd = psd_and_tangents(q[b, : rec.n], dq[b, : rec.n].T, rec.dt)
+            # d log10(bands·psd + floor) = bands·dpsd / ((bands·psd + floor)·ln 10)
+            level = bands @ psd + floor + 1e-40
+            dlp = (dpsd @ bands.T) / (level * np.log(10.0))
+            out.append((self.w_psd * dlp / np.sqrt(lp_meas.size)).T)
         return out
 
-    def _step_terms(self, q):
+    def _step_terms(self, q, xp=jnp, *, tangent: bool = False):
+        """The step-length rows of each sawtooth; with ``tangent`` (``q`` then the
+        derivatives (B, T, k)) their derivatives (rows, k)."""
         out = []
         for b, ends in enumerate(self.data.ends):
             if len(ends) < 2:
                 continue
             meas = np.diff(self.data.recordings[b].position_m[ends])
-            sim = jnp.diff(q[b, ends])
-            out.append(self.w_steps * (sim - meas) / (self.data.scale[b] * np.sqrt(len(meas))))
+            sim = xp.diff(q[b, ends], axis=0)
+            if not tangent:
+                sim = sim - meas
+            out.append(self.w_steps * sim / (self.data.scale[b] * np.sqrt(len(meas))))
         return out
+
+
+def psd_and_tangents(x, dx, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_psd`'s periodogram of ``x`` (n,) [m²/Hz] and its derivatives along the
+    rows of ``dx`` (k, n) [m²/Hz per unit of the tangent] (numpy): the detrending and
+    the window are linear, so d|X|² = 2·Re(X̄·dX)·dt/Σwin² with X, dX the windowed
+    spectra [m·s]."""
+    x = np.asarray(x, dtype=float)
+    dx = np.atleast_2d(np.asarray(dx, dtype=float))
+    n = x.shape[-1]
+    t = np.arange(n)
+    win = np.hanning(n)
+
+    def spectrum(y):
+        slope = (y[..., -1] - y[..., 0]) / (n - 1)
+        return np.fft.rfft((y - y[..., :1] - slope[..., None] * t) * win) * dt
+
+    spec, dspec = spectrum(x), spectrum(dx)
+    norm = dt * float(np.sum(win**2))
+    return np.abs(spec) ** 2 / norm, 2.0 * np.real(np.conj(spec) * dspec) / norm

@@ -1,17 +1,19 @@
-"""One least-squares solve: optimistix Levenberg-Marquardt with progress and a verdict.
+"""One least-squares solve: Levenberg-Marquardt with progress and a verdict.
 
 The Jacobian is built in forward mode, so its cost grows with the number of
 parameters, not the length of the traces; it is the cost of every step (one value
 and one Jacobian per LM step, nothing else touches the simulator).
 
-:class:`ColumnSplitJacobian` evaluates it outside optimistix's compiled step, with
-its columns shared among threads: each thread runs one vmapped forward-mode pass
-(the primal once, its share of the tangents at once) of the same compiled program.
-The simulator's scan is sequential, so XLA keeps one CPU core busy per call; two
-calls on two threads use two cores. The step then receives the value and the
-Jacobian as arguments (a custom JVP applies the Jacobian as a matrix product), so
-optimistix's transformations never see the simulator and tracing the step costs a
-fraction of a second.
+:class:`ColumnSplitJacobian` evaluates it with its columns shared among threads:
+each thread runs one vmapped forward-mode pass (the primal once, its share of the
+tangents at once) of the same compiled program. The simulator's scan is sequential,
+so XLA keeps one CPU core busy per call; two calls on two threads use two cores.
+
+The step itself (:class:`LevenbergMarquardtSteps`) is optimistix's
+``LevenbergMarquardt`` (a classical trust region over damped Gauss-Newton steps,
+solved by QR) written out in numpy, on the value and Jacobian evaluated before it:
+compiled, each solve's step was a program of its own for its shapes (about 0.5 s to
+compile, four per identification, issue #28), for work of a few milliseconds.
 """
 
 from __future__ import annotations
@@ -22,11 +24,10 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
+from scipy.linalg import solve_triangular
 
 from ..adjoint import value_and_jacfwd
 
@@ -124,17 +125,80 @@ class ColumnSplitJacobian:
         return parts[0][0], jnp.concatenate([p[1] for p in parts], axis=1)[:, :k]
 
 
-@jax.custom_jvp
-def _evaluated(phi, value_and_jac):
-    """``value`` of a precomputed ``(value, jac)`` at ``phi``, with derivative ``jac``."""
-    del phi
-    return value_and_jac[0]
+class LevenbergMarquardtSteps:
+    """Levenberg-Marquardt one step at a time, as optimistix's ``LevenbergMarquardt``
+    (``ClassicalTrustRegion`` and ``DampedNewtonDescent``) takes them, in numpy.
 
+    Feed it the residual and Jacobian at :attr:`y_eval`, the point it tries
+    (:meth:`step`); it accepts or rejects that point by the trust-region test (the
+    cost fell by at least ``LOW_CUTOFF`` of the fall the linear model predicted; the
+    first point is always accepted), scales the step size (1/λ) by ``HIGH_CONSTANT``
+    after a step the model predicted to within ``HIGH_CUTOFF``, by ``LOW_CONSTANT``
+    after a rejection, and proposes the next point: the least-squares solution of
+    ``[J; √λ·I] δ = [r; 0]`` (QR) from the last accepted point, ``y − δ``. An accepted
+    point also gets optimistix's Cauchy test (:attr:`terminate`): the change of y and
+    of the residual since the last accepted point both below ``atol + rtol·|value|`` in
+    RMS over their entries (never with ``rtol = atol = 0``).
+    """
 
-@_evaluated.defjvp
-def _evaluated_jvp(primals, tangents):
-    (_, (value, jac)), (t, _) = primals, tangents
-    return value, jac @ t
+    HIGH_CUTOFF = 0.99
+    LOW_CUTOFF = 0.01
+    HIGH_CONSTANT = 3.5
+    LOW_CONSTANT = 0.25
+
+    def __init__(self, y0, *, step_size: float = 1.0, rtol: float = 0.0, atol: float = 0.0):
+        self.y = np.asarray(y0, dtype=float)
+        self.y_eval = self.y.copy()
+        self.step_size = float(step_size)
+        self.rtol, self.atol = float(rtol), float(atol)
+        self.residual = None
+        self.jac = None
+        self.accepted = 0
+        self.terminate = False
+
+    def step(self, value, jac) -> bool:
+        """Take the residual ``value`` (N,) and Jacobian ``jac`` (N, k) at
+        :attr:`y_eval`; returns whether that point was accepted."""
+        value = np.asarray(value, dtype=float)
+        jac = np.asarray(jac, dtype=float)
+        first = self.residual is None
+        residual = np.zeros_like(value) if first else self.residual
+        rtr = float(np.sum(residual**2))
+        cost_diff = 0.5 * float(np.sum(value**2)) - 0.5 * rtr
+        if first:
+            accept, good = True, False
+        else:
+            predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y) + residual) ** 2))
+                               - rtr)
+            accept = bool(cost_diff <= self.LOW_CUTOFF * predicted)
+            good = bool(cost_diff < self.HIGH_CUTOFF * predicted and predicted < 0)
+        self.step_size *= (self.HIGH_CONSTANT if good else 1.0) if accept else self.LOW_CONSTANT
+        if accept:
+            self.terminate = self._cauchy(self.y_eval - self.y, value, value - residual)
+            self.y, self.residual, self.jac = self.y_eval, value, jac
+            self.accepted += 1
+        else:
+            self.terminate = False
+        self.y_eval = self.y + (-self._damped_step())
+        return accept
+
+    def _damped_step(self) -> np.ndarray:
+        eps = np.finfo(float).eps
+        lm = 1.0 / self.step_size if self.step_size > eps else np.finfo(float).max
+        k = self.y.size
+        a = np.concatenate([self.jac, np.sqrt(lm) * np.eye(k)])
+        q, r = np.linalg.qr(a)
+        return solve_triangular(r, q.T @ np.concatenate([self.residual, np.zeros(k)]),
+                                check_finite=False)
+
+    def _cauchy(self, y_diff, f, f_diff) -> bool:
+        def rms(x):
+            return float(np.sqrt(np.mean(x**2)))
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            y_ok = rms(np.abs(y_diff) / (self.atol + self.rtol * np.abs(self.y_eval))) < 1
+            f_ok = rms(np.abs(f_diff) / (self.atol + self.rtol * np.abs(f))) < 1
+        return bool(y_ok and f_ok)
 
 
 def gauss_newton_distance(residual, jac, *, rcond: float = 1e-9) -> float:
@@ -171,14 +235,15 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                         atol: float = 1e-6, ftol: float | None = None, window: int = 5,
                         gn_tol: float | None = None, initial_damping: float = 1.0,
                         scale_by_jacobian: bool = True, label: str = "fit",
-                        echo: Callable[[str], None] | None = None) -> SolveResult:
+                        echo: Callable[[str], None] | None = None,
+                        jacobian: Callable | None = None) -> SolveResult:
     """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
 
-    Optimistix's solver takes the steps; this loop drives them one at a time (as
-    ``optx.least_squares`` does inside a while loop) so that it can report progress
-    and apply a second convergence test, and evaluates the residual and its Jacobian
-    at the point each step tries before the step (:class:`ColumnSplitJacobian`, the
-    one place the simulator runs). Two ways to converge, whichever comes first:
+    :class:`LevenbergMarquardtSteps` (optimistix's solver, in numpy) takes the steps;
+    this loop drives them one at a time so that it can report progress and apply a
+    second convergence test, and evaluates the residual and its Jacobian at the point
+    each step tries before the step (:class:`ColumnSplitJacobian`, the one place the
+    simulator runs). Two ways to converge, whichever comes first:
 
     - optimistix's Cauchy test: the change of θ and of the residual vector between
       accepted steps are small in RMS over their entries, ``rms(|Δθ| / (atol +
@@ -207,8 +272,9 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     quadratic model predicted the cost to 1 %: from a start near the optimum, along
     strongly correlated directions (the PI weights), that is ~8 damped steps, each a
     Jacobian, before the steps become Gauss-Newton's. Madsen, Nielsen & Tingleff
-    (2004, §3.2) recommend 1e-3 from a start already good (a rejected step raises it
-    4x at the cost of one evaluation).
+    (2004, §3.2) start at 1e-6 when the start is believed to be close to the
+    minimiser, at 1e-3 (or 1) otherwise (a rejected step raises it 4x at the cost of
+    one evaluation).
 
     ``scale_by_jacobian`` (MINPACK's and scipy's ``x_scale='jac'``): the solve runs in
     φ = d·(θ − θ0) with d the column norms of the Jacobian at the start, so every
@@ -217,6 +283,10 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     starts with a damping thousands of times too strong and creeps for ~10 steps. The
     Cauchy tolerances then apply to φ: atol = 1e-6 is a change worth 1e-6 of one
     unit-sensitivity direction.
+
+    ``jacobian``: ``θ ↦ (residuals(θ), ∂residuals/∂θ)`` evaluated elsewhere (the
+    identification's shared programs, :class:`~.sensitivities.StepJacobian`) instead
+    of :class:`ColumnSplitJacobian` over ``residuals``.
 
     Never raises on failure: the verdict is in the result.
     """
@@ -229,21 +299,23 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                            time.perf_counter() - start, cost, cost, r, r,
                            np.zeros((r.size, 0)))
 
-    # The solve runs in φ = d·(θ − θ0); d and θ0 are arguments of the compiled step,
-    # so the scaling is chosen after the first evaluation without compiling again.
+    # The solve runs in φ = d·(θ − θ0); d and θ0 are arguments of the compiled
+    # Jacobian, so the scaling is chosen after the first evaluation without compiling
+    # again.
     def scaled(phi, args):
         origin, d = args
         return residuals(origin + phi / d)
 
-    evaluate = ColumnSplitJacobian(scaled)
+    if jacobian is None:
+        evaluate = ColumnSplitJacobian(scaled)
+    else:
+        def evaluate(phi, args):
+            origin, d = (np.asarray(a) for a in args)
+            value, jac = jacobian(origin + np.asarray(phi) / d)
+            return np.asarray(value), np.asarray(jac) / d[None, :]
 
-    def fn(phi, args):
-        # args[2]: the value and Jacobian at φ, evaluated before the step.
-        return _evaluated(phi, args[2]), None
-
-    options, tags = {"jac": "fwd"}, frozenset()
-    phi0 = jnp.zeros_like(theta0)
-    d = jnp.ones_like(theta0)
+    phi0 = np.zeros(theta0.shape)
+    d = np.ones(theta0.shape)
     value, jac = evaluate(phi0, (theta0, d))
     if scale_by_jacobian:
         # MINPACK's x_scale='jac': the Jacobian at the start gives the column norms,
@@ -252,46 +324,27 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         largest = float(norms.max())
         norms = np.where(np.isfinite(norms) & (norms > 1e-12 * max(largest, 1e-300)), norms,
                          max(largest, 1.0))
-        d = jnp.asarray(norms)
-        jac = jac / d[None, :]
+        d = norms
+        jac = np.asarray(jac) / d[None, :]
     if ftol is None:
-        ftol = 0.1 / max(int(value.size), 1)
+        ftol = 0.1 / max(int(np.size(value)), 1)
     if gn_tol is not None:
-        # Only the point test decides (optimistix's Cauchy test never passes at 0).
+        # Only the point test decides (the Cauchy test never passes at 0).
         rtol = atol = ftol = 0.0
-    args = (theta0, d, (value, jac))
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol, norm=optx.rms_norm)
-    state = solver.init(fn, phi0, args, options, jax.eval_shape(lambda: value), None, tags)
-    if initial_damping != 1.0:  # optimistix's step size is 1/λ
-        state = eqx.tree_at(lambda st: st.search_state.step_size, state,
-                            jnp.asarray(1.0 / initial_damping, dtype=float))
-    dynamic0, static = eqx.partition(state, eqx.is_array)
-
-    @jax.jit
-    def step(y, dynamic, args):
-        new_y, new_state, _ = solver.step(fn, y, args, options, eqx.combine(static, dynamic),
-                                          tags)
-        loss = jnp.sum(new_state.f_info.residual ** 2)
-        return new_y, eqx.partition(new_state, eqx.is_array)[0], loss
-
-    def jacobian_at_accepted(dynamic, d):
-        # The Jacobian optimistix holds for the last accepted point, in θ coordinates.
-        jac = eqx.combine(static, dynamic).f_info.jac.as_matrix()
-        return np.asarray(jac) * np.asarray(d)[None, :]
-
-    y, dynamic = phi0, dynamic0
+    lm = LevenbergMarquardtSteps(phi0, step_size=1.0 / initial_damping, rtol=rtol, atol=atol)
     costs: list[float] = []  # cost at each accepted point, the start first
     residual_start = None
+    jac_accepted = jac  # the Jacobian (in φ) at the last accepted point
     ok, message, n = False, f"not converged: hit max_steps={max_steps}", 0
-    # The first call only evaluates the start (optimistix accepts it as the first
-    # point); each later call proposes one LM step and accepts or rejects it.
+    # The first step only takes the start (always accepted); each later one tries the
+    # point the one before proposed, and accepts or rejects it.
     for n in range(max_steps + 1):
         if n:  # the point this step tries (the start's was evaluated above)
-            value, jac = evaluate(eqx.combine(static, dynamic).y_eval, (theta0, d))
-        y, dynamic, loss = step(y, dynamic, (theta0, d, (value, jac)))
-        st = eqx.combine(static, dynamic)
-        cost, accepted = float(loss), int(st.num_accepted_steps)
-        if accepted > len(costs):
+            value, jac = evaluate(lm.y_eval, (theta0, d))
+        if lm.step(value, jac):
+            jac_accepted = jac
+        cost = float(np.sum(lm.residual**2))
+        if lm.accepted > len(costs):
             costs.append(cost)
             if gn_tol is not None:  # (value, jac) are this accepted point's
                 distance = gauss_newton_distance(value, jac)
@@ -302,16 +355,13 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                                          f"{np.sqrt(distance):.2g} standard errors)")
                     break
         if residual_start is None:
-            residual_start = np.asarray(st.f_info.residual)
+            residual_start = lm.residual
         if echo is not None:
-            echo(f"  {label}: step {n:3d}  accepted {accepted - 1:3d}  cost {cost:.4e}")
-        if not (np.all(np.isfinite(np.asarray(y))) and np.isfinite(cost)):
+            echo(f"  {label}: step {n:3d}  accepted {lm.accepted - 1:3d}  cost {cost:.4e}")
+        if not (np.all(np.isfinite(lm.y)) and np.isfinite(cost)):
             ok, message = False, "failed: non-finite parameters or cost"
             break
-        if not bool(st.result == optx.RESULTS.successful):
-            ok, message = False, f"failed: {optx.RESULTS[st.result]}"
-            break
-        if bool(st.terminate):
+        if lm.terminate:
             ok, message = True, "converged (parameter and residual changes below tolerance)"
             break
         if (gn_tol is None and len(costs) > window
@@ -319,14 +369,11 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
             ok, message = True, (f"converged (cost stationary: fell by less than {ftol:.2g} "
                                  f"of itself over {window} accepted steps)")
             break
-    # y is the last accepted point, so the costs the steps reported and the residual
-    # and Jacobian the state holds are the ones at the start and the end (no extra
-    # compiled evaluation needed).
-    st = eqx.combine(static, dynamic)
-    residual = np.asarray(st.f_info.residual)
-    jac = jacobian_at_accepted(dynamic, d)
+    # The last accepted point, its residual, and the Jacobian evaluated with it.
+    residual = lm.residual
+    jac = np.asarray(jac_accepted) * np.asarray(d)[None, :]
     wall = time.perf_counter() - start
     cost_start, cost_end = (costs[0], costs[-1]) if costs else (np.nan, np.nan)
-    theta = np.asarray(theta0 + y / d)
+    theta = np.asarray(theta0) + lm.y / np.asarray(d)
     return SolveResult(theta, ok, message, n, wall, cost_start, cost_end, residual_start,
                        residual, jac)

@@ -1,0 +1,279 @@
+"""Simulated traces of a dataset's recordings and their forward-mode derivatives, from
+programs that every identification step shares.
+
+Each step needs, at every point its solver tries, the model output of some recordings
+and its derivatives with respect to the step's free parameters. A residual closed over
+the step's recordings and parameter map is a program of its own: XLA compiled the
+simulator's forward-mode pass once per step, with one copy of the sample loop per
+length bucket, and that was about half of an identification's time on a CPU (issue
+#28: 17 s of 40 s on the fixtures).
+
+Here the compiled program simulates *one* recording, padded to the dataset's longest,
+and everything that differs between steps is an argument:
+
+- the actuator (the values fitted so far);
+- the tangents, given per leaf of the actuator for every quantity that some step fits
+  (:func:`perturbed_mask`); a step's columns are the derivatives of those leaves along
+  its own coordinates (a leaf the step holds gets zero tangents), in shares of a fixed
+  width (:attr:`RecordingPrograms.width`, zero-padded);
+- the recording: voltage, number of real samples, sample period, drive.
+
+Only the stepping plan (the sub-step counts, static), the shapes and the tangents per
+call key the program, so the steps compile it once per plan (twice: a step with few
+columns takes them one per call, :func:`tangents_per_call`), and the final
+uncertainty and traces reuse it. A call computes one (recording, share) pair; the
+pairs are shared among threads
+(:func:`~.solve.jacobian_threads`; the simulator's loop is sequential, so one call
+keeps one core busy), longest recordings first, and put back in a fixed order: the
+numbers do not depend on the threads.
+
+A value-only program (no tangents) serves traces alone (the step-doubling error
+estimate, :func:`~.residuals.numerical_error`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..simulate import rest_carry
+from ..stepping import StepPlan, sample_stepper
+from .dataset import Dataset
+from .parameters import ParameterSpec, _getter
+from .solve import _pool, jacobian_threads
+
+CHUNK = 128
+"""Samples per chunk of the per-recording loop [-]. A chunk that starts after the
+recording's last real sample is skipped (a ``cond``), so a recording padded to the
+dataset's longest pays for at most ``CHUNK − 1`` samples past its end; skipping sample
+by sample instead costs each padded sample a copy of the whole tangent state."""
+
+
+def _row_output(actuator, voltage, n, dt, drive, plan: StepPlan):
+    """Model output q [m] of one recording: ``voltage`` [V] (T,) padded with its last
+    value, ``n`` real samples; past them q repeats its last real value (as
+    :class:`~.dataset.Dataset` pads the measurement). The same arithmetic as
+    :func:`~.residuals.simulate_dataset` on the real samples."""
+    carry, q0 = rest_carry(actuator, voltage[0], drive)
+    step = sample_stepper(actuator, dt, drive, plan)
+    t = voltage.shape[0]
+    chunks = -(-(t - 1) // CHUNK)
+    u = jnp.concatenate([voltage, jnp.full(chunks * CHUNK + 1 - t, voltage[-1])])
+    u_a = u[:-1].reshape(chunks, CHUNK)
+    u_b = u[1:].reshape(chunks, CHUNK)
+    first = 1 + CHUNK * jnp.arange(chunks)  # the sample each chunk's first interval ends at
+
+    def chunk(c, x):
+        start, a, b = x
+        return jax.lax.cond(start < n, lambda c: jax.lax.scan(step, c, (a, b)),
+                            lambda c: (c, jnp.zeros(CHUNK, dtype=q0.dtype)), c)
+
+    _, qs = jax.lax.scan(chunk, carry, (first, u_a, u_b))
+    q = jnp.concatenate([q0[None], qs.reshape(-1)[: t - 1]])
+    k = jnp.arange(t)
+    q = jnp.where(k < n, q, q[n - 1])
+    return actuator.output_map(dt * k, q)
+
+
+@eqx.filter_jit
+def _row(actuator, voltage, n, dt, drive, plan):
+    return _row_output(actuator, voltage, n, dt, drive, plan)
+
+
+@eqx.filter_jit
+def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
+    """``(q (T,), dq (T, W))``: the output and its derivatives along the W tangents
+    (leading axis of every leaf of ``tangents``) of the ``perturbed`` leaves."""
+
+    def output(p):
+        return _row_output(eqx.combine(p, fixed), voltage, n, dt, drive, plan)
+
+    width = jax.tree.leaves(tangents)[0].shape[0]
+    if width == 1:
+        # One direction: a plain JVP (vmapped, every loop operation would be a length-1
+        # vector operation).
+        value, tangent = jax.jvp(output, (perturbed,), (jax.tree.map(lambda x: x[0], tangents),))
+        return value, tangent[:, None]
+    return jax.vmap(lambda t: jax.jvp(output, (perturbed,), (t,)), out_axes=(None, -1))(tangents)
+
+
+def tangents_per_call(k: int, width: int) -> int:
+    """Tangents per call for a step of ``k`` columns: one (a plain JVP, the second
+    program) when ``2·k ≤ width``, else ``width``.
+
+    A vmapped pass pays a fixed cost for its vector operations besides each tangent's:
+    through one 2500-sample recording, with the native loops of
+    :func:`~stickslip_jax.fast_cpu_loops`, 4 ms without tangents, 6 ms with one plain
+    tangent, 16 ms with two vmapped and 65 ms with 21 (issue #28). So k single calls
+    (6.2·k ms) beat one call of 21 up to k = 10: the friction step's two break-aways
+    and the dynamics step's six quantities go singly (on the fixtures a friction
+    Jacobian takes 0.14 s instead of 0.62 s), the hysteresis (35) and joint (42) steps
+    in shares of the width."""
+    return 1 if 2 * k <= width else width
+
+
+def perturbed_mask(actuator, names: Sequence[str],
+                   specs: dict[str, ParameterSpec] | None = None):
+    """A pytree of bools shaped like ``actuator``: True at the leaves of ``names`` (built-in
+    quantities, or ``specs`` for model extensions), the quantities whose derivatives the
+    shared programs carry."""
+    specs = specs or {}
+    mask = jax.tree.map(lambda _: False, actuator)
+    for name in names:
+        getter = specs[name].getter if name in specs else _getter(name, actuator)
+        mask = eqx.tree_at(getter, mask, True)
+    return mask
+
+
+class RecordingPrograms:
+    """The recordings of ``data`` one by one through the shared programs (module
+    docstring): traces (:meth:`simulate`) and traces with their derivatives along
+    tangents of the ``mask`` leaves of ``actuator`` (:meth:`sensitivities`), ``threads``
+    calls at once (default :func:`~.solve.jacobian_threads`).
+
+    :attr:`width`, the tangents per call (default: the total size of the mask's leaves
+    shared equally among the threads, so that the widest step, every fitted quantity,
+    takes one call per thread and recording, and a narrower step one call per
+    recording). Without a mask only :meth:`simulate` serves.
+    """
+
+    def __init__(self, data: Dataset, actuator=None, mask=None, *,
+                 threads: int | None = None, width: int | None = None):
+        self.data = data
+        self.mask = mask
+        self.threads = jacobian_threads() if threads is None else int(threads)
+        self.width = width
+        if mask is not None and width is None:
+            size = sum(int(np.size(x)) for x, m in zip(jax.tree.leaves(actuator),
+                                                        jax.tree.leaves(mask), strict=True)
+                       if m)
+            self.width = max(1, -(-size // self.threads))
+        self._rows = [
+            (jnp.asarray(data.voltages[b]),
+             jnp.asarray(int(data.mask[b].sum()), dtype=jnp.int32),
+             jnp.asarray(data.dt[b]),
+             jax.tree.map(lambda x, b=b: jnp.asarray(np.asarray(x)[b]), data.drives))
+            for b in range(len(data))]
+        self._length = np.asarray(data.mask.sum(axis=1), dtype=int)
+        self._compiled: set = set()
+
+    def _order(self, rows: Sequence[int]) -> list[int]:
+        # Longest first, so that the last calls are short ones (threads finish together).
+        return sorted(rows, key=lambda b: (-self._length[b], b))
+
+    def _run(self, tasks, call, key) -> dict:
+        """``{task: call(task)}``; the first task alone when ``key`` (the program) is new
+        here, so that the threads do not each compile it, the rest among the threads."""
+        out = {}
+        tasks = list(tasks)
+        if key not in self._compiled and tasks:
+            out[tasks[0]] = jax.block_until_ready(call(tasks[0]))
+            self._compiled.add(key)
+            tasks = tasks[1:]
+        if self.threads == 1 or len(tasks) <= 1:
+            out.update({t: jax.block_until_ready(call(t)) for t in tasks})
+            return out
+        pool = _pool(self.threads)
+        futures = {t: pool.submit(lambda t=t: jax.block_until_ready(call(t))) for t in tasks}
+        out.update({t: f.result() for t, f in futures.items()})
+        return out
+
+    def _all(self, rows):
+        return list(range(len(self.data))) if rows is None else [int(b) for b in rows]
+
+    def simulate(self, actuator, plan: StepPlan, rows: Sequence[int] | None = None
+                 ) -> np.ndarray:
+        """Model output q [m] of the recordings ``rows`` (default all), (R, T), each
+        padded to the dataset's length T with its last real value."""
+        rows = self._all(rows)
+        key = ("value", plan, jax.tree.structure(actuator))
+        done = self._run(self._order(rows), lambda b: _row(actuator, *self._rows[b], plan),
+                         key)
+        return np.stack([np.asarray(done[b]) for b in rows])
+
+    def sensitivities(self, actuator, tangents, plan: StepPlan,
+                      rows: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(q (R, T), dq (R, T, k))``: the outputs [m] of the recordings ``rows``
+        (default all) and their derivatives along ``k`` tangents, ``tangents`` being a
+        pytree of the mask's leaves (``eqx.filter(…, mask)`` of an actuator-shaped tree)
+        with a leading axis of k on every leaf.
+
+        At most half :attr:`width` tangents go one per call, through the program of a
+        single plain JVP (:func:`tangents_per_call`); more, :attr:`width` per call."""
+        rows = self._all(rows)
+        perturbed, fixed = eqx.partition(actuator, self.mask)
+        perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
+        tangents = jax.tree.map(lambda x: np.asarray(x, dtype=float), tangents)
+        k = jax.tree.leaves(tangents)[0].shape[0]
+        w = tangents_per_call(k, self.width)
+        shares = max(1, -(-k // w))
+
+        def share(s):
+            def cut(x):
+                part = x[s * w:(s + 1) * w]
+                return np.concatenate([part, np.zeros((w - part.shape[0],) + x.shape[1:])])
+            return jax.tree.map(cut, tangents)
+
+        parts = [share(s) for s in range(shares)]
+        key = ("tangents", plan, w, jax.tree.structure(perturbed), jax.tree.structure(fixed))
+        tasks = [(b, s) for b in self._order(rows) for s in range(shares)]
+        done = self._run(tasks, lambda t: _row_with_tangents(
+            perturbed, fixed, parts[t[1]], *self._rows[t[0]], plan), key)
+        t_len = self.data.voltages.shape[1]
+        q = np.empty((len(rows), t_len))
+        dq = np.empty((len(rows), t_len, shares * w))
+        for i, b in enumerate(rows):
+            q[i] = np.asarray(done[(b, 0)][0])
+            for s in range(shares):
+                dq[i, :, s * w:(s + 1) * w] = np.asarray(done[(b, s)][1])
+        return q, dq[:, :, :k]
+
+
+class StepJacobian:
+    """``θ ↦ (residual, ∂residual/∂θ)`` of one step's residual ``res`` (a
+    :class:`~.residuals.TraceResiduals` over the recordings ``rows`` of the programs'
+    dataset, around its own parameter map), through the shared programs: the outputs'
+    derivatives along the step's coordinates, then the residual's by the chain rule
+    (:meth:`~.residuals.TraceResiduals.jacobian_from_outputs`, numpy). For
+    :func:`~.solve.solve_least_squares` ``jacobian``.
+
+    The outputs of the last few points are kept (:meth:`outputs_at`): the traces at the
+    optimum come with the solve.
+    """
+
+    KEEP = 8
+    """Points whose outputs are kept [-]: the solver ends at the point it evaluated
+    last, or, after rejected steps, at one before it (after more than seven rejected
+    steps in a row the traces at the optimum are simulated again)."""
+
+    def __init__(self, res, programs: RecordingPrograms, rows: Sequence[int]):
+        self.res = res
+        self.programs = programs
+        self.rows = [int(b) for b in rows]
+        self._outputs: dict[bytes, np.ndarray] = {}
+
+    def __call__(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        theta = np.asarray(theta, dtype=float)
+        pmap = self.res.pmap
+        # The actuator and its leaves' tangents in numpy: nothing compiled per step.
+        tangents = pmap.leaf_tangents(theta, self.programs.mask)
+        q, dq = self.programs.sensitivities(self.actuator(theta), tangents, self.res.plan,
+                                            self.rows)
+        t = self.res.data.voltages.shape[1]
+        self._outputs[theta.tobytes()] = q
+        while len(self._outputs) > self.KEEP:
+            self._outputs.pop(next(iter(self._outputs)))
+        return self.res.jacobian_from_outputs(q[:, :t], dq[:, :t])
+
+    def actuator(self, theta):
+        """The step's actuator at ``theta`` (``pmap.actuator`` in numpy)."""
+        return self.res.pmap.actuator(np.asarray(theta, dtype=float), xp=np)
+
+    def outputs_at(self, theta) -> np.ndarray | None:
+        """The outputs q [m] (R, T) at ``theta`` if it was one of the last points
+        evaluated, else None."""
+        return self._outputs.get(np.asarray(theta, dtype=float).tobytes())
