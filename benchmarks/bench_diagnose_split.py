@@ -30,6 +30,7 @@ and the confusion matrix.
 
 import argparse
 import json
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -68,6 +69,20 @@ def outcome(row: dict) -> str:
     return UNEXPLAINED if row["verdict"] == Verdict.UNEXPLAINED else ADEQUATE
 
 
+def code_version() -> str:
+    """The commit the code runs at (``+dirty`` with uncommitted changes), stamped on
+    every row: a resumed run may span commits, and the report says which."""
+    here = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here,
+                              capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=here, capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
 def run_one(spec: rs.SetSpec, reduced: bool) -> dict:
     """Simulate set ``spec``, diagnose it, and the row of the JSON."""
     drives = protocol(reduced)
@@ -85,7 +100,7 @@ def run_one(spec: rs.SetSpec, reduced: bool) -> dict:
         effect_nm=1e9 * size["rms_m"], effect_to_noise=size["to_noise"],
         beyond_baseline_nm=1e9 * size["beyond_baseline_m"],
         beyond_to_noise=size["beyond_to_noise"], simulate_s=simulate_s,
-        truth_factors=spec.truth_factors)
+        truth_factors=spec.truth_factors, commit=code_version())
     row["outcome"] = outcome(row)
     row["right_first"] = bool(row["named"]) and row["named"][0] == spec.effect
     row["wrong_first"] = bool(row["named"]) and row["named"][0] != spec.effect

@@ -202,5 +202,8 @@ def test_an_entry_freed_in_the_identification_steps_is_recovered_from_the_profil
     from stickslip_jax.identify.dataset import Dataset
 
     problem = Problem(Dataset.from_recordings(recs), np.full(len(recs), 1e-9), {}, None)
+    # Two compiled programs (the identification's shared simulation, the diagnosis's
+    # value-only one) round differently, and a slip's timing carries that: 7e-7 of the
+    # cost measured, a few thousandths of one noise variance.
     np.testing.assert_allclose(problem.cost_of_output(ident.actuator, ident.q_sim),
-                               problem.evaluate(ident.actuator)[0], rtol=1e-12)
+                               problem.evaluate(ident.actuator)[0], rtol=1e-5)

@@ -117,16 +117,16 @@ def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candida
     estimated work would pass the budget (keeping ``at.reserve``)."""
     problem = setup.problem
     budget, say = problem.budget, problem.say
-    need = problem.fit_estimate(start, setup.columns(start, specs), setup.max_steps)
+    need = problem.refit_estimate(start, setup.columns(start, specs), setup.max_steps)
     if budgeted and not budget.allows(need, at.reserve):
         res.set_aside(CandidateStatus.SKIPPED, budget.skip(f"refit {cand.name}", need))
         say(f"[budget] refit {cand.name} {res.note}")
         return
     t0 = time.perf_counter()
     try:
-        fitted, _, out = problem.fit(start, setup.base_names + list(specs), specs,
-                                     label=f"refit {cand.name}",
-                                     max_steps=setup.max_steps)
+        fitted, _, out = problem.refit(start, setup.base_names + list(specs), specs,
+                                       label=f"refit {cand.name}",
+                                       max_steps=setup.max_steps)
     except ValueError as err:  # no valid start (e.g. a PI loop at the edge)
         res.set_aside(CandidateStatus.REFIT_FAILED, f"refit not possible: {err}")
         say(f"[refit {cand.name}] {res.note}")
@@ -152,7 +152,7 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
     # The staged steps (assumed; charged as they ran afterwards), then the refit.
     columns = setup.columns(source, specs)
     need = (REIDENTIFY_EVALUATIONS * problem.evaluation_work(source, columns)
-            + problem.fit_estimate(source, columns, setup.max_steps))
+            + problem.refit_estimate(source, columns, setup.max_steps))
     if not budget.allows(need, at.reserve):
         note = budget.skip(f"re-identification of {cand.name}", need)
         res.note = "; ".join(filter(None, [res.note, note]))
@@ -178,9 +178,9 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
     if not rss_staged < bar:
         res.wall_s += time.perf_counter() - t0
         return  # the entry did not help the staged steps
-    fitted, _, out = problem.fit(ident.actuator, setup.base_names + list(specs), specs,
-                                 label=f"refit {cand.name} (re-identified)",
-                                 max_steps=setup.max_steps)
+    fitted, _, out = problem.refit(ident.actuator, setup.base_names + list(specs), specs,
+                                   label=f"refit {cand.name} (re-identified)",
+                                   max_steps=setup.max_steps)
     if not out.cost_end >= res.rss_after:  # also when not refitted (nan)
         record_refit(setup, at, res, fitted, out, specs, t0)
         res.note = "; ".join(filter(None, [

@@ -449,7 +449,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     round_one_work = 0.0  # what round one's scores and sizings cost
     for rnd in range(max_rounds):
         # A later round: its scores and sizings (as round one's) and one refit.
-        later = round_one_work + problem.fit_estimate(act, base.n_base + 1, max_steps)
+        later = round_one_work + problem.refit_estimate(act, base.n_base + 1, max_steps)
         if rnd > 0 and not budget.allows(later):
             note = budget.skip(f"round {rnd + 1}", later)
             say(f"[budget] round {rnd + 1} {note}")
