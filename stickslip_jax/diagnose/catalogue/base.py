@@ -1,0 +1,88 @@
+"""The probe and the abstract catalogue entry every entry file makes final."""
+
+from __future__ import annotations
+
+import abc
+import inspect
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+from ...identify.parameters import ParameterSpec
+from ...model.actuator import Actuator
+
+
+@dataclass(frozen=True)
+class Probe:
+    """One zero-strength variant of an effect: ``install`` puts the component in the
+    actuator at zero strength; ``spec`` addresses the strength (θ = 1 is ``spec.scale``
+    of it); ``sign`` +1 when only positive strengths are physical, 0 for any sign."""
+
+    label: str
+    install: Callable[[Actuator], Actuator] | None
+    spec: ParameterSpec
+    sign: int = 0
+    setting: dict = field(default_factory=dict)
+    extension: object = None  # appended by the probe builder, which addresses it by index
+    field: str = ""
+
+    def strength_scale(self, strength: float) -> float:
+        """A θ unit for refitting a linear strength that starts at ``strength``."""
+        return abs(strength) if abs(strength) > 1e-3 * self.spec.scale else self.spec.scale
+
+
+class CatalogueEntry(abc.ABC):
+    """A catalogue entry (see the package docstring): abstract. Each entry is a final
+    subclass in its own module, and no entry is subclassed, so what one entry does is
+    read in one file; what several share is in :mod:`.slots`."""
+
+    name: ClassVar[str]
+    """The entry's name, the issue's exact one."""
+    slot: ClassVar[str]
+    """Where its component acts: ``input_stage``, ``extension``, ``friction``,
+    ``slider`` or ``output_map``."""
+    signature: ClassVar[str]
+    """Where the effect should show (regime, phase of the period, band)."""
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        # Abstract/final: a concrete entry (no abstract method left) is never extended,
+        # so no entry's behaviour hides in another's file.
+        for parent in cls.__mro__[1:]:
+            if (issubclass(parent, CatalogueEntry) and parent is not CatalogueEntry
+                    and not inspect.isabstract(parent)):
+                raise TypeError(f"{cls.__name__}: the catalogue entry {parent.__name__} "
+                                f"is final")
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+    @abc.abstractmethod
+    def probes(self, act: Actuator, hints: dict) -> list[Probe]:
+        """Zero-strength versions of the effect on ``act``, one per setting of its
+        nonlinear parameter; ``hints`` what the located residual suggests
+        (``peaks_Hz``: shared residual peaks [Hz]; ``max_slew_V_s``: the fastest
+        voltage slope of the commands [V/s]; either may be missing)."""
+
+    @abc.abstractmethod
+    def attach(self, act: Actuator, strength: float,
+               probe: Probe) -> tuple[Actuator, dict[str, ParameterSpec]]:
+        """``act`` with the effect at ``strength`` (``probe``'s strength, in its
+        ``spec.unit``), and the parameters a refit frees, by name."""
+
+    @abc.abstractmethod
+    def carry(self, init: Actuator, fitted: Actuator) -> Actuator:
+        """``init`` with the entry's component that ``fitted`` (the baseline plus the
+        entry, refitted) carries in :attr:`slot`: the component with its refitted
+        values, every baseline quantity from ``init``."""
+
+    def needs(self, recordings: Sequence) -> str | None:
+        """Why the effect cannot show in ``recordings``; None when it can."""
+        return None
+
+    def seeds(self, act: Actuator,
+              hints: dict) -> list[tuple[Actuator, dict[str, ParameterSpec]]]:
+        """Extra starting points for the sizing (the entry attached at settings spread
+        over its plausible range), for effects whose cost is too rugged in a nonlinear
+        parameter for the first-order strength to be a usable start; none by default."""
+        return []
