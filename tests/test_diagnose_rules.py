@@ -3,11 +3,14 @@
 (Whole diagnoses are in test_diagnose.py; these rules decide where their time goes.)
 """
 
+import inspect
+
 import equinox as eqx
 import numpy as np
+import pytest
 
 import stickslip_jax as ss
-from stickslip_jax.diagnose.catalogue import candidate
+from stickslip_jax.diagnose.catalogue import CATALOGUE, NAMES, Candidate, CatalogueEntry, candidate
 from stickslip_jax.diagnose.policy import (
     COMPETITIVE_SHARE,
     LATER_SCORE_SHARE,
@@ -16,7 +19,6 @@ from stickslip_jax.diagnose.policy import (
     SECOND_LOOK_CHI2,
     Policy,
 )
-from stickslip_jax.diagnose.refit import entry_on
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.rules import (
     fallback_refits,
@@ -198,12 +200,13 @@ def _two_actuators():
 
 def test_a_re_identification_starts_from_the_start_with_only_the_entry_moved():
     init, fitted = _two_actuators()
-    for slot, moved in [("output_map", lambda a: a.output_map.delay),
-                        ("input_stage", lambda a: a.input_stage.tau),
-                        ("extension", lambda a: a.extensions[-1].tau),
-                        ("slider", lambda a: a.slider.F_ext),
-                        ("friction", lambda a: a.friction.rho1)]:
-        start = entry_on(init, fitted, slot)
+    for name, moved in [("sensor_delay", lambda a: a.output_map.delay),
+                        ("drive_bandwidth", lambda a: a.input_stage.tau),
+                        ("creep", lambda a: a.extensions[-1].tau),
+                        ("external_load", lambda a: a.slider.F_ext),
+                        ("contact_damping", lambda a: a.friction.rho1)]:
+        slot = candidate(name).slot
+        start = candidate(name).carry(init, fitted)
         assert float(moved(start)) == float(moved(fitted)), slot
         # The baseline's quantities are the start's, not the refit's.
         assert float(start.piezo.Mp) == float(init.piezo.Mp)
@@ -213,11 +216,25 @@ def test_a_re_identification_starts_from_the_start_with_only_the_entry_moved():
         # Other slots stay as they were.
         assert (slot == "extension") == (len(start.extensions) == 1)
         assert (slot == "output_map") == (type(start.output_map) is not type(init.output_map))
-    # Every catalogue entry's slot is one entry_on knows.
-    for name in ("creep", "stribeck", "viscous_friction", "contact_damping",
-                 "rate_dependent_hysteresis", "drive_bandwidth", "structural_mode",
-                 "sensor_delay", "sensor_drift", "external_load"):
-        entry_on(init, fitted, candidate(name).slot)
+
+
+def test_every_entry_is_a_final_class_of_the_abstract_entry():
+    init, fitted = _two_actuators()
+    assert inspect.isabstract(CatalogueEntry) and Candidate is CatalogueEntry
+    with pytest.raises(TypeError):
+        CatalogueEntry()
+    assert len({type(c) for c in CATALOGUE}) == len(CATALOGUE) == len(NAMES)
+    for cand in CATALOGUE:
+        cls = type(cand)
+        assert isinstance(cand, CatalogueEntry) and not inspect.isabstract(cls)
+        assert getattr(cls, "__final__", False) and not cls.__subclasses__(), cls
+        assert cls.slot in ("input_stage", "extension", "friction", "slider", "output_map")
+        assert isinstance(cls.signature, str) and cls.signature
+        # Each one's carry runs on an actuator holding a component in every slot.
+        cand.carry(init, fitted)
+    # A concrete entry is never extended.
+    with pytest.raises(TypeError, match="final"):
+        type("Wider", (type(candidate("creep")),), {})
 
 
 def test_a_seeded_entry_gets_a_second_look_when_the_explaining_refit_leaves_structure():

@@ -12,10 +12,8 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import equinox as eqx
 import numpy as np
 
-from ..identify.parameters import law_fittable
 from ..identify.steps import identify
 from ..model.actuator import Actuator
 from ..model.extensions import LEARNED_FEATURES
@@ -139,7 +137,8 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
                source: Actuator, specs: dict, bar: float, *, init: Actuator, fix: dict,
                staged: Sequence[str]) -> None:
     """Re-identify ``res`` (entry ``cand``, sized to ``source`` with its ``specs``): the
-    identification's ``staged`` steps from ``init`` with the entry attached (at its
+    identification's ``staged`` steps from ``init`` with the entry attached (its
+    component carried over, :meth:`~.catalogue.base.CatalogueEntry.carry`, at its
     refitted values, else its sized ones) and free in every step, then the refit; it
     replaces the entry's refit when it ends lower. Only a re-identification whose staged
     steps cost less than ``bar`` is refitted.
@@ -164,7 +163,7 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
     if res.actuator is not None:
         source = res.actuator  # the entry's values after its refit
     try:
-        entry_init = entry_on(init, source, cand.slot)
+        entry_init = cand.carry(init, source)  # the entry's slot, refitted
         ident = identify(data.recordings, init=entry_init, fix=fix, steps=staged,
                          extra=specs, max_steps=60, uncertainty=False)
         budget.charge(identification_work(ident, data, has_drive_stage(entry_init)))
@@ -188,31 +187,4 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
             "entry free, then the refit", res.note]))
     else:
         res.wall_s += time.perf_counter() - t0
-
-
-def entry_on(init: Actuator, fitted: Actuator, slot: str) -> Actuator:
-    """``init`` with the entry that ``fitted`` (the baseline plus the entry, refitted)
-    carries in ``slot``: the entry's component with its refitted values, every baseline
-    quantity from ``init``."""
-    if slot == "output_map":
-        return eqx.tree_at(lambda a: a.output_map, init, fitted.output_map)
-    if slot == "input_stage":
-        return eqx.tree_at(lambda a: a.input_stage, init, fitted.input_stage)
-    if slot == "extension":
-        for ext in fitted.extensions[len(init.extensions):]:
-            init = init.with_extension(ext)
-        return init
-    if slot == "slider":
-        return eqx.tree_at(lambda a: a.slider.F_ext, init, fitted.slider.F_ext)
-    if slot == "friction":
-        # The baseline's own friction quantities (those its steps fit by default: rho0
-        # and z_ba for the paper's law) from ``init``, the entry's from ``fitted``.
-        f, g = fitted.friction, init.friction
-        kept = {p.attr for p in law_fittable(f)}
-        attrs = tuple(p.attr for p in law_fittable(g)
-                      if p.step and not p.on_request and p.attr in kept)
-        f = eqx.tree_at(lambda f: tuple(getattr(f, a) for a in attrs), f,
-                        tuple(getattr(g, a) for a in attrs))
-        return eqx.tree_at(lambda a: a.friction, init, f)
-    raise ValueError(f"unknown slot {slot!r}")
 
