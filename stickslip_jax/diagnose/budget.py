@@ -21,7 +21,8 @@ padded grid (recordings × the longest one's samples: the rows step together), a
 Levenberg-Marquardt fit of ``s`` steps makes ``s + 1`` evaluations (the start, then
 one per step). Work done is charged from the steps the solver reports; work to come
 is estimated before it runs from counts alone: samples, free parameters, ``max_steps``
-(an upper bound: the refits the budget guards mostly stop there), drive stage.
+(an upper bound: the refits the budget guards mostly stop there; a refit's two stages
+each at ``max_steps``, :meth:`~.problem.Problem.refit_estimate`), drive stage.
 These counts do not depend on the machine; they depend on the data only through the
 solver's step counts, which are the same wherever the arithmetic is.
 
@@ -59,7 +60,12 @@ DRIVE_STAGE_FACTOR = 2.5
 """How much more a sample costs when the model has a drive (input) stage [-]: the
 hysteresis is then evaluated at every RK4 stage instead of once per sample interval.
 Measured, same run: refits of 102 s against 30-45 s (the uncatalogued concealed
-set), 92 against 22-38 s (a two-pole amplifier), 108 against 20-31 s (another)."""
+set), 92 against 22-38 s (a two-pole amplifier), 108 against 20-31 s (another).
+It undercounts a drive faster than the actuator's own modes: the stepping plan's
+sub-steps follow the fastest pole (on the fixture truth: 8 per sample without a drive
+stage or with a 20 µs low-pass, 16 with 5 µs, 80 with 1 µs). A random dev set's
+drive refit (held PI weights, ~13 columns) took 7.4 s per step against 1.3 s for the
+other entries' (issue #27); counting the plan's sub-steps is the honest fix."""
 REIDENTIFY_EVALUATIONS = 35
 """Work assumed for a re-identification's staged steps before they run, in evaluations
 of the whole data set at the refit's size [-]: they took 20-40 s on the paper's
