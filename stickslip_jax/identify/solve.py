@@ -155,6 +155,9 @@ class LevenbergMarquardtSteps:
         self.jac = None
         self.accepted = 0
         self.terminate = False
+        self.predicted_fall = np.inf
+        """The fall of ``Σ residual²`` the linear model predicted for the point last
+        tried (inf for the start)."""
 
     def step(self, value, jac) -> bool:
         """Take the residual ``value`` (N,) and Jacobian ``jac`` (N, k) at
@@ -170,6 +173,7 @@ class LevenbergMarquardtSteps:
         else:
             predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y) + residual) ** 2))
                                - rtr)
+            self.predicted_fall = -2.0 * predicted
             accept = bool(cost_diff <= self.LOW_CUTOFF * predicted)
             good = bool(cost_diff < self.HIGH_CUTOFF * predicted and predicted < 0)
         self.step_size *= (self.HIGH_CONSTANT if good else 1.0) if accept else self.LOW_CONSTANT
@@ -232,9 +236,11 @@ def value_and_jacobian(residuals: Callable, theta):
 
 
 STALL_REJECTIONS = 5
-"""Consecutive rejected Levenberg-Marquardt steps after which a fit under the
-Gauss-Newton test (``gn_tol``) stops as stalled: each rejection shortens the next step
-4x, so the fifth tries a step about 1000x shorter than the first. Converged when the
+"""Consecutive rejected Levenberg-Marquardt steps, each promised by the linear model a
+fall of ``Σ residual²`` below one noise variance σ̂² = cost/(N − p), after which a fit
+under the Gauss-Newton test (``gn_tol``) stops as stalled (a rejected step that promised
+more, far from the optimum, is ordinary trust-region work and resets the count). Each
+rejection shortens the next step, so the fifth tries a much shorter one. Converged when the
 Gauss-Newton step from the point is within one standard error (its quadratic model
 then puts the cost within one noise variance σ̂² of its minimum), not converged
 otherwise."""
@@ -274,7 +280,8 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     the metric JᵀJ/σ̂² (σ̂² = cost/(N − p)); ``gn_tol = 0.01`` is a tenth of a standard
     error in every direction the data determine. Then the Cauchy and ftol tests are
     off, and a fit that gets no closer ends at ``max_steps``, not converged, or earlier
-    when :data:`STALL_REJECTIONS` steps in a row are rejected (converged when the
+    when :data:`STALL_REJECTIONS` steps in a row that promised less than one noise
+    variance are rejected (converged when the
     Gauss-Newton step is within one standard error: the cost is rough there at the
     simulator's resolution).
 
@@ -357,8 +364,12 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
             value, jac = evaluate(lm.y_eval, (theta0, d))
         if lm.step(value, jac):
             jac_accepted, rejected_run = jac, 0
-        else:
+        elif lm.predicted_fall <= np.sum(lm.residual**2) / max(lm.residual.size - phi0.size, 1):
+            # Rejected where the model promised less than one noise variance σ̂²: the
+            # cost's roughness at the simulator's resolution, not a far-off optimum.
             rejected_run += 1
+        else:
+            rejected_run = 0
         cost = float(np.sum(lm.residual**2))
         if lm.accepted > len(costs):
             costs.append(cost)
@@ -381,10 +392,10 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
             ok, message = True, "converged (parameter and residual changes below tolerance)"
             break
         if gn_tol is not None and rejected_run >= STALL_REJECTIONS:
-            # The quadratic model promises a fall no step delivers, even 4^5 times
-            # shorter than the first it proposed: the cost is rough at this scale (a
-            # simulated stick-slip event moves a sample). Within a standard error that
-            # is the optimum as far as the simulator resolves it.
+            # The quadratic model promises a fall smaller than one noise variance, and
+            # no step delivers it, each 4x shorter than the one before: the cost is
+            # rough at this scale (a simulated stick-slip event moves a sample). Within
+            # a standard error that is the optimum as far as the simulator resolves it.
             ok = distance <= 1.0
             message = (f"{'converged' if ok else 'not converged'} (stalled: no step lowers "
                        f"the cost, {STALL_REJECTIONS} rejected in a row; the Gauss-Newton "
