@@ -13,7 +13,7 @@ from .identify_cmd import _parse_fix
 
 EPILOG = """Examples:
 
-  stickslip diagnose fixtures/concealed/set_03 --out out/diag --fix Ms=0.0247
+  stickslip diagnose recordings/ --out out/diag --fix Ms=0.0247
 
   stickslip diagnose runs/ --params out/id/params.json --skip-identify --out out/diag
 
