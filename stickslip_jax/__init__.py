@@ -111,6 +111,7 @@ from .stepping import (
     SteppingError,
     StepPlan,
     fastest_rate,
+    mechanical_rate,
 )
 from .sweep import (
     DriveChoice,
@@ -144,7 +145,7 @@ __all__ = [
     "AbstractOutputMap", "Actuator", "ConstantZssElastoPlastic", "CoreState",
     "DEFAULT_STEPPING", "REFERENCE_STEPPING", "DriveContext", "NonFiniteSimulation",
     "StepPlan", "Stepping",
-    "SteppingError", "estimate_error", "fastest_rate", "plan_steps",
+    "SteppingError", "estimate_error", "fastest_rate", "mechanical_rate", "plan_steps",
     "DriveInfo", "EULER", "ElastoPlastic", "ExplicitRK", "ExtensionTerms", "HEUN",
     "IdentityInput", "IdentityOutput", "InputOverwriteError", "LU2015_TABLE", "LuGre",
     "OutputExistsError", "PROFILES", "ParameterError", "PiezoElement", "PrandtlIshlinskii",

@@ -37,7 +37,7 @@ from .stepping import (
     DEFAULT_STEPPING,
     Stepping,
     StepPlan,
-    fastest_rate,
+    mechanical_rate,
     sample_stepper,
     time_scale_report,
 )
@@ -88,7 +88,7 @@ def check_finite(q, actuator: Actuator, plan: StepPlan, dt, what: str = "the sim
         cause = ("A natural frequency far above 100 kHz, or a negative mass, stiffness or "
                  "damping, usually means a unit slip.")
         try:
-            rate = fastest_rate(actuator)
+            rate = mechanical_rate(actuator)
         except Exception:  # noqa: BLE001 - the report must not fail where the model did
             rate = None
         if rate is not None and h * rate > RK4_STABLE_PHASE:

@@ -9,9 +9,11 @@ sub-step boundaries fall:
 - **A step size in seconds.** The sub-steps per sample follow from a longest step
   ``max_step`` [s], by default a fixed fraction of the model's fastest time scale:
   ``radians_per_step / ω_max`` with ``ω_max`` the spectral radius of the vector
-  field's Jacobian at rest (the piezo element's stick mode, an input stage's pole,
-  an extension's mode; :func:`fastest_rate`). The same voltage sampled at 1 kHz or
-  100 kHz is then integrated with the same step.
+  field's Jacobian at rest without the input stage (the piezo element's stick mode,
+  an extension's mode; :func:`mechanical_rate`). An input stage (the drive
+  amplifier) depends on the command only and is integrated apart, at a step that
+  resolves its own poles (:mod:`stickslip_jax.drive_path`). The same voltage sampled
+  at 1 kHz or 100 kHz is then integrated with the same step.
 - **Located events.** Where the relative velocity changes sign during a slip the
   vector field bends (:meth:`~stickslip_jax.model.base.AbstractFriction.velocity_kink`);
   a sub-step across the bend is redone as two steps meeting at it
@@ -38,6 +40,14 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_batching import custom_vmap
 
+from .drive_path import (
+    grid_points,
+    held_mechanics,
+    separate_stage,
+    stage_slice,
+    stage_table,
+    table_voltage,
+)
 from .model.actuator import N_CORE, Actuator
 from .model.base import DriveContext
 from .solvers import RK4, ExplicitRK
@@ -82,20 +92,47 @@ def _rest_jacobian(actuator: Actuator, drive: DriveContext):
     return jax.jacfwd(lambda y: actuator.vector_field(y, 0.0, stroke, drive))(y0)
 
 
+def _rest_eigenvalues(actuator: Actuator, drive: DriveContext | None, rows) -> float:
+    # Concrete values inside someone else's trace too (a loss compiled by an optimiser
+    # that closes over a concrete actuator).
+    with jax.ensure_compile_time_eval():
+        drive = DriveContext.make() if drive is None else drive
+        jac = np.asarray(_rest_jacobian(actuator, drive), dtype=float)
+    jac = jac[np.ix_(rows, rows)]
+    if not np.all(np.isfinite(jac)):
+        return math.inf
+    if jac.size == 0:
+        return 0.0
+    return float(np.max(np.abs(np.linalg.eigvals(jac))))
+
+
+def _stage_rows(actuator: Actuator) -> np.ndarray:
+    return np.arange(N_CORE, N_CORE + actuator.input_stage.n_states)
+
+
 def fastest_rate(actuator: Actuator, drive: DriveContext | None = None) -> float:
     """Spectral radius of the vector field's Jacobian at rest under 0 V [rad/s].
 
     The fastest linear time scale of the whole model (piezo stick mode, slider on the
     contact, input-stage poles, extension modes), from concrete parameter values.
     """
-    # Concrete values inside someone else's trace too (a loss compiled by an optimiser
-    # that closes over a concrete actuator).
-    with jax.ensure_compile_time_eval():
-        drive = DriveContext.make() if drive is None else drive
-        jac = np.asarray(_rest_jacobian(actuator, drive), dtype=float)
-    if not np.all(np.isfinite(jac)):
-        return math.inf
-    return float(np.max(np.abs(np.linalg.eigvals(jac))))
+    return _rest_eigenvalues(actuator, drive, np.arange(actuator.n_states))
+
+
+def mechanical_rate(actuator: Actuator, drive: DriveContext | None = None) -> float:
+    """:func:`fastest_rate` without the input stage's poles [rad/s]: the rate the
+    mechanical sub-step must follow. The stage depends on the command only, so the
+    Jacobian is block-triangular and its eigenvalues are those of the mechanical block
+    and of the stage's (:func:`stage_rate`); the stage is integrated apart
+    (:mod:`stickslip_jax.drive_path`)."""
+    rows = np.setdiff1d(np.arange(actuator.n_states), _stage_rows(actuator))
+    return _rest_eigenvalues(actuator, drive, rows)
+
+
+def stage_rate(actuator: Actuator, drive: DriveContext | None = None) -> float:
+    """Spectral radius of the input stage's own Jacobian block at rest [rad/s] (0
+    without stage states)."""
+    return _rest_eigenvalues(actuator, drive, _stage_rows(actuator))
 
 
 def time_scale_report(actuator: Actuator) -> str:
@@ -130,6 +167,11 @@ class StepPlan(eqx.Module):
         error [m/s] enters the estimate times ``coarse step/radians_per_step`` (1/ω_max
         for a planned step), so that it counts in metres.
     solver: the Runge-Kutta tableau, with or without event location.
+    stage_substeps: RK4 steps of an input stage integrated apart, per gap between the
+        sub-steps' stage times (:mod:`stickslip_jax.drive_path`; unused without one).
+    stage_apart: integrate an input stage apart from the mechanics (default), or
+        inside the mechanical step with everything else (then the sub-steps must
+        resolve its poles; kept for comparisons).
 
     Only integers and user settings: a plan does not change with the parameter values
     unless the sub-step count does, so compiled simulations are reused.
@@ -140,20 +182,24 @@ class StepPlan(eqx.Module):
     tolerance: float = eqx.field(static=True, default=DEFAULT_TOLERANCE_M)
     radians_per_step: float = eqx.field(static=True, default=DEFAULT_RADIANS_PER_STEP)
     solver: ExplicitRK = eqx.field(static=True, default=RK4)
+    stage_substeps: int = eqx.field(static=True, default=1)
+    stage_apart: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
-        if self.substeps < 1 or self.refine < 1:
-            raise ValueError(f"substeps and refine must be ≥ 1, got {self.substeps}, "
-                             f"{self.refine}")
+        if self.substeps < 1 or self.refine < 1 or self.stage_substeps < 1:
+            raise ValueError(f"substeps, refine and stage_substeps must be ≥ 1, got "
+                             f"{self.substeps}, {self.refine}, {self.stage_substeps}")
 
     @property
     def refines(self) -> bool:
         return self.refine > 1
 
     def doubled(self) -> StepPlan:
-        """Twice the sub-steps, same rules (for step-doubling error estimates)."""
+        """Twice the sub-steps, same rules (for step-doubling error estimates); an
+        input stage's steps halve with the gaps they span."""
         return StepPlan(2 * self.substeps, self.refine, self.tolerance,
-                        self.radians_per_step / 2, self.solver)
+                        self.radians_per_step / 2, self.solver, self.stage_substeps,
+                        self.stage_apart)
 
 
 class Stepping(eqx.Module):
@@ -170,6 +216,9 @@ class Stepping(eqx.Module):
     tolerance: bound on an interval's summed local error estimate [m].
     radians_per_step: the coarse step as a phase of the fastest mode [rad].
     solver: Runge-Kutta tableau (default RK4, with event location).
+    stage_apart: integrate an input stage apart from the mechanics, at its own step
+        (default, :mod:`stickslip_jax.drive_path`); ``False``: inside the mechanical
+        step, whose sub-steps then follow the stage's poles too (comparisons).
     """
 
     max_step: float | None = eqx.field(static=True, default=None)
@@ -178,6 +227,7 @@ class Stepping(eqx.Module):
     tolerance: float = eqx.field(static=True, default=DEFAULT_TOLERANCE_M)
     radians_per_step: float = eqx.field(static=True, default=DEFAULT_RADIANS_PER_STEP)
     solver: ExplicitRK = eqx.field(static=True, default=RK4)
+    stage_apart: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
         if self.max_step is not None and not (math.isfinite(self.max_step)
@@ -196,10 +246,11 @@ class Stepping(eqx.Module):
         return Stepping(substeps=int(substeps), refine=1, solver=solver)
 
     def longest_step(self, actuator: Actuator) -> float:
-        """The longest coarse step [s] for this actuator."""
+        """The longest coarse step [s] for this actuator (its mechanics: an input
+        stage is integrated apart at its own step, :meth:`stage_steps`)."""
         rate = None
         if _concrete(actuator):
-            rate = fastest_rate(actuator)
+            rate = mechanical_rate(actuator) if self.stage_apart else fastest_rate(actuator)
             if not (math.isfinite(rate) and rate > 0):
                 raise SteppingError(
                     "the model's linearisation at rest is not finite; check the "
@@ -217,6 +268,24 @@ class Stepping(eqx.Module):
         else:
             step = FALLBACK_MAX_STEP_S
         return step
+
+    def stage_steps(self, actuator: Actuator, gap: float) -> int:
+        """RK4 steps of the input stage per ``gap`` [s] between stage times: enough
+        that each is at most ``radians_per_step`` of the stage's fastest pole. 1 without
+        stage states, or for traced values (then ``max_step`` should resolve it)."""
+        if (actuator.input_stage.n_states == 0 or not self.stage_apart
+                or not _concrete(actuator)):
+            return 1
+        rate = stage_rate(actuator)
+        if not (math.isfinite(rate) and rate >= 0):
+            raise SteppingError("the input stage's linearisation at rest is not finite; "
+                                "check its parameters")
+        if rate > 2 * math.pi * MAX_PLAUSIBLE_MODE_HZ:
+            raise SteppingError(
+                f"the input stage's pole is at {rate / (2 * math.pi) / 1e6:.3g} MHz, far "
+                "above any drive amplifier's bandwidth: a unit slip (a time constant in "
+                "µs read as s·1e-6 twice)?")
+        return max(1, math.ceil(gap * rate / self.radians_per_step * (1 - 1e-12)))
 
     def plan(self, actuator: Actuator, dt, *, samples: int | None = None) -> StepPlan:
         """The static :class:`StepPlan` for ``actuator`` sampled every ``dt`` [s] (one
@@ -246,7 +315,10 @@ class Stepping(eqx.Module):
                 + ". A natural frequency far above 100 kHz usually means a unit slip "
                 "(Kp in N/µm read as N/m, Mp in g read as kg)."
             )
-        return StepPlan(n, self.refine, self.tolerance, self.radians_per_step, self.solver)
+        c_unique = sorted(set(self.solver.c) | {1.0})
+        gap = dt_max / n * float(np.max(np.diff(c_unique)))
+        return StepPlan(n, self.refine, self.tolerance, self.radians_per_step, self.solver,
+                        self.stage_steps(actuator, gap), self.stage_apart)
 
 
 DEFAULT_STEPPING = Stepping()
@@ -338,6 +410,13 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
     grid = jnp.asarray((np.arange(n)[:, None] + np.asarray(c_unique)[None, :]) / n)
     fast = actuator.stroke_follows_command
     embedded = len(solver.c) == 4 and solver.order == 4
+    # An input stage with states is integrated apart, onto the stage times
+    # (:mod:`stickslip_jax.drive_path`); the mechanics then take the piezo voltage.
+    separate = plan.stage_apart and separate_stage(actuator)
+    mechanics = held_mechanics(actuator) if separate else actuator
+    if separate:
+        points_np, point_index = grid_points(c_unique, n)
+        stage_at = stage_slice(actuator)
 
     def stroke_rows(memory, u):
         return jax.vmap(actuator.hysteresis.output, (None, 0))(
@@ -353,20 +432,38 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
             # in one vectorised evaluation.
             u_stage = u_a + du * fractions
             strokes = stroke_rows(memory, u_stage)
+        if separate:
+            points = tau0 + span * jnp.asarray(points_np)
+            states, volts, rates = stage_table(actuator.input_stage, y[stage_at], u_a, du,
+                                               dt, points, plan.stage_substeps)
+
+            def voltage(tau):
+                return table_voltage(tau, points, volts, rates)
+        else:
+            def voltage(tau):
+                return u_a + du * tau
 
         def substep(j, state):
             y, memory, k1, total = state
 
             def field_at(tau, yy):
-                u = u_a + du * tau
-                return actuator.vector_field(yy, u, actuator.free_stroke(yy, memory, u), drive)
+                u = voltage(tau)
+                return mechanics.vector_field(yy, u, mechanics.free_stroke(yy, memory, u),
+                                              drive)
 
             if fast:
                 u_row = jax.lax.dynamic_index_in_dim(u_stage, j, keepdims=False)
                 g_row = jax.lax.dynamic_index_in_dim(strokes, j, keepdims=False)
 
                 def on_grid(col, yy):
-                    return actuator.vector_field(yy, u_row[col], g_row[col], drive)
+                    return mechanics.vector_field(yy, u_row[col], g_row[col], drive)
+            elif separate:
+                at = jnp.asarray(point_index)[j]
+
+                def on_grid(col, yy):
+                    u = volts[at[col]]
+                    return mechanics.vector_field(yy, u, mechanics.free_stroke(yy, memory, u),
+                                                  drive)
             else:
                 row = jax.lax.dynamic_index_in_dim(fractions, j, keepdims=False)
 
@@ -379,7 +476,7 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
                 stages.append(on_grid(column[i], yy))
                 return stages[-1]
 
-            y1 = actuator.project(solver.step(field, y, h, k1), drive)
+            y1 = mechanics.project(solver.step(field, y, h, k1), drive)
             k_end = on_grid(end_column, y1)
             err = jnp.zeros_like(y[0])
             if embedded:
@@ -388,15 +485,20 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
                 err = jnp.max(jnp.abs(h / 6.0 * (stages[-1][:N_CORE] - k_end[:N_CORE]))
                               * weights)
             if solver.locate_events:
-                y1, k_end = _located(actuator, drive, solver, field_at, y, y1, k1, k_end,
+                y1, k_end = _located(mechanics, drive, solver, field_at, y, y1, k1, k_end,
                                      tau0 + span * j / n, span / n, h)
+            if separate:
+                # The held stage states: from the table, at the sub-step's end.
+                y1 = y1.at[stage_at].set(states[at[end_column]])
             if not fast:
                 # Committing at the end voltage leaves the stroke there, so k_end stands.
-                memory = actuator.commit_memory(y1, memory, u_a + du * (tau0 + span * (j + 1) / n))
+                u_end = (volts[at[end_column]] if separate
+                         else voltage(tau0 + span * (j + 1) / n))
+                memory = mechanics.commit_memory(y1, memory, u_end)
             return y1, memory, k_end, total + err
 
-        k0 = actuator.vector_field(y, u_a + du * tau0,
-                                   actuator.free_stroke(y, memory, u_a + du * tau0), drive)
+        k0 = mechanics.vector_field(y, voltage(tau0),
+                                    mechanics.free_stroke(y, memory, voltage(tau0)), drive)
         # Zeros typed like the state (under shard_map a loop carry must keep the state's
         # varying axes).
         zero = jnp.zeros_like(y[0])

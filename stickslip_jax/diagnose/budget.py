@@ -58,14 +58,16 @@ one tangent took 0.42 s and 22 vmapped 1.15 s, 0.035 s (≈ 0.08 of the pass) pe
 column; rounded up."""
 DRIVE_STAGE_FACTOR = 2.5
 """How much more a sample costs when the model has a drive (input) stage [-]: the
-hysteresis is then evaluated at every RK4 stage instead of once per sample interval.
-Measured, same run: refits of 102 s against 30-45 s (the uncatalogued concealed
-set), 92 against 22-38 s (a two-pole amplifier), 108 against 20-31 s (another).
-It undercounts a drive faster than the actuator's own modes: the stepping plan's
-sub-steps follow the fastest pole (on the fixture truth: 8 per sample without a drive
-stage or with a 20 µs low-pass, 16 with 5 µs, 80 with 1 µs). A random dev set's
-drive refit (held PI weights, ~13 columns) took 7.4 s per step against 1.3 s for the
-other entries' (issue #27); counting the plan's sub-steps is the honest fix."""
+hysteresis is then evaluated at every RK4 stage instead of once per sample interval,
+and the stage is integrated apart at its own step (:mod:`stickslip_jax.drive_path`).
+Measured (``benchmarks/bench_drive_stage.py``, the 17-recording protocol, a Jacobian
+of 4 columns against the same without a stage): 1.5x for a 20 µs low-pass, 1.6x at
+5 µs, 1.9x at 1 µs, 2.9x for a 1 µs slew-limited stage, 1.6x for a 60 kHz two-pole
+stage. Before the stage was integrated apart its poles set the mechanical sub-step,
+and a 1 µs amplifier cost 24x (80 sub-steps per sample against 9), which this factor
+undercounted. Other fast modes (a refitted baseline with a stiff contact, a high
+structural mode) still multiply the sub-steps uncounted; counting the plan's
+sub-steps would be the general fix."""
 REIDENTIFY_EVALUATIONS = 35
 """Work assumed for a re-identification's staged steps before they run, in evaluations
 of the whole data set at the refit's size [-]: they took 20-40 s on the paper's
