@@ -57,7 +57,7 @@ CANNOT_SHOW = {
 }
 
 
-def _pi_slope(act: Actuator) -> float:
+def pi_slope(act: Actuator) -> float:
     """Small-signal stroke per volt of the PI loop [m/V] (first weight)."""
     return float(np.asarray(act.hysteresis.weights)[0])
 
@@ -71,7 +71,7 @@ def _stribeck(act: Actuator) -> Actuator:
 
 def with_effect(act: Actuator, effect: str) -> Actuator:
     """``act`` with the hidden ``effect`` (see the module table) added."""
-    w = _pi_slope(act)
+    w = pi_slope(act)
     if effect == "none":
         return act
     if effect == "creep":
@@ -130,7 +130,7 @@ diagnosis is not tuned to one generator. ``name → (expected verdict name, form
 
 def with_variant(act: Actuator, variant: str) -> Actuator:
     """``act`` with the hidden variant effect (see :data:`VARIANTS`)."""
-    w = _pi_slope(act)
+    w = pi_slope(act)
     if variant == "creep_two_modes":
         return act.with_extension(Creep(0.03 * w, 8e-3)).with_extension(Creep(0.01 * w, 60e-3))
     if variant == "drive_second_order":

@@ -151,6 +151,7 @@ from ..model.extensions import (
 from ..model.friction import StribeckElastoPlastic
 from ..params import actuator_from_params
 from ..stepping import REFERENCE_STEPPING
+from .concealed import pi_slope as _w  # the truth's stroke per volt [m/V]
 from .effects import (
     CascadeInput,
     CoulombDrag,
@@ -204,11 +205,6 @@ class Form:
     build: Build
     signed: bool = False
     others: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-
-def _w(act: Actuator) -> float:
-    """The truth's small-signal stroke per volt (first PI weight) [m/V]."""
-    return float(np.asarray(act.hysteresis.weights)[0])
 
 
 def _friction(act: Actuator, new) -> Actuator:
