@@ -472,7 +472,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
 
         # 4. Size (either sign: a large effect can turn the first-order sign around),
         # with the baseline held; rank by the larger of the score and the sizing's drop.
-        seeded = {c.name for c in pool if c.seeds(init, {})}
+        seeded = {c.name for c in pool if c.seeds(init)}
         chosen = chosen_for_sizing(results, seeded, size_at_most,
                                    rss - n_obs if accepted else None, say, policy)
         sized = size_entries(problem, chosen, pool, scores, act, base.unpolished, rss,

@@ -58,7 +58,7 @@ def first_order_start(problem: Problem, act: Actuator, base_names: list[str],
 def best_seed(problem: Problem, act: Actuator, base_names: list[str], cand: Candidate):
     """``(cost, start, specs)`` of the entry's cheapest seed on ``act``, or None."""
     best = None
-    for start, specs in cand.seeds(act, {}):
+    for start, specs in cand.seeds(act):
         try:
             ParameterMap.make(start, base_names)
             cost = problem.evaluate(start)[0]

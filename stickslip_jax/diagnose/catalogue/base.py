@@ -80,9 +80,9 @@ class CatalogueEntry(abc.ABC):
         """Why the effect cannot show in ``recordings``; None when it can."""
         return None
 
-    def seeds(self, act: Actuator,
-              hints: dict) -> list[tuple[Actuator, dict[str, ParameterSpec]]]:
+    def seeds(self, act: Actuator) -> list[tuple[Actuator, dict[str, ParameterSpec]]]:
         """Extra starting points for the sizing (the entry attached at settings spread
-        over its plausible range), for effects whose cost is too rugged in a nonlinear
-        parameter for the first-order strength to be a usable start; none by default."""
+        over its plausible range, independent of the data), for effects whose cost is
+        too rugged in a nonlinear parameter for the first-order strength to be a usable
+        start; none by default."""
         return []

@@ -91,7 +91,7 @@ class DriveBandwidthEntry(CatalogueEntry):
                                                  "V/s"),
                      "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s")}
 
-    def seeds(self, act, hints):
+    def seeds(self, act):
         """Under-damped two-pole amplifiers over 3-20 kHz and damping 0.3-0.7: a step
         edge's overshoot sets the slip of every period, so the cost in the corner
         frequency is rugged and a start from the first-order strength is often in the
