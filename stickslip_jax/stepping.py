@@ -42,6 +42,7 @@ from jax.custom_batching import custom_vmap
 
 from .drive_path import (
     grid_points,
+    has_closed_form,
     held_mechanics,
     separate_stage,
     stage_slice,
@@ -74,6 +75,11 @@ MAX_SUBSTEPS_PER_CALL = 400_000_000
 """Refuse a simulation that would take more coarse sub-steps than this (all rows of a
 batch together): at about 0.1 µs each that is a minute, and more usually means a unit
 slip in a parameter (a stiffness per µm read per m)."""
+
+
+MAX_STAGE_STEPS = 1024
+"""Refuse an input stage that needs more RK4 steps than this between two of the
+mechanical sub-step's stage times (a pole near 100 MHz at the default profile's step)."""
 
 
 class SteppingError(ValueError):
@@ -272,20 +278,24 @@ class Stepping(eqx.Module):
     def stage_steps(self, actuator: Actuator, gap: float) -> int:
         """RK4 steps of the input stage per ``gap`` [s] between stage times: enough
         that each is at most ``radians_per_step`` of the stage's fastest pole. 1 without
-        stage states, or for traced values (then ``max_step`` should resolve it)."""
-        if (actuator.input_stage.n_states == 0 or not self.stage_apart
+        stage states, for a stage advanced in closed form, or for traced values (then
+        ``max_step`` should resolve it)."""
+        stage = actuator.input_stage
+        if (stage.n_states == 0 or not self.stage_apart or has_closed_form(stage)
                 or not _concrete(actuator)):
             return 1
         rate = stage_rate(actuator)
         if not (math.isfinite(rate) and rate >= 0):
             raise SteppingError("the input stage's linearisation at rest is not finite; "
                                 "check its parameters")
-        if rate > 2 * math.pi * MAX_PLAUSIBLE_MODE_HZ:
+        steps = max(1, math.ceil(gap * rate / self.radians_per_step * (1 - 1e-12)))
+        if steps > MAX_STAGE_STEPS:
             raise SteppingError(
-                f"the input stage's pole is at {rate / (2 * math.pi) / 1e6:.3g} MHz, far "
-                "above any drive amplifier's bandwidth: a unit slip (a time constant in "
-                "µs read as s·1e-6 twice)?")
-        return max(1, math.ceil(gap * rate / self.radians_per_step * (1 - 1e-12)))
+                f"the input stage's pole is at {rate / (2 * math.pi) / 1e6:.3g} MHz: "
+                f"{steps} steps between the simulator's stage times (limit "
+                f"{MAX_STAGE_STEPS}), far above any drive amplifier's bandwidth: a unit "
+                "slip (a time constant in µs read as s)?")
+        return steps
 
     def plan(self, actuator: Actuator, dt, *, samples: int | None = None) -> StepPlan:
         """The static :class:`StepPlan` for ``actuator`` sampled every ``dt`` [s] (one

@@ -204,6 +204,14 @@ class AbstractInputStage(eqx.Module):
     def voltage(self, state, u_command):
         """Voltage reaching the piezo [V]."""
 
+    def advance(self, state, u_start, u_end, h):
+        """The states after ``h`` [s] under a command linear from ``u_start`` to
+        ``u_end`` [V], in closed form, for stages that have one (stable at any step: a
+        fit may drive a time constant towards 0, the pass-through). ``None`` (the
+        default): the simulator takes Runge-Kutta steps of :meth:`rate`
+        (:mod:`stickslip_jax.drive_path`)."""
+        return None
+
 
 class CoreState(eqx.Module):
     """The mechanical state handed to extensions (read-only views, SI units).

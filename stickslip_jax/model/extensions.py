@@ -74,6 +74,11 @@ class LowPassInput(AbstractInputStage):
     def voltage(self, state, u_command):
         return u_command + self.mix * (state[0] - u_command)
 
+    def advance(self, state, u_start, u_end, h):
+        # Under u = u_start + r·t the solution is s = u − r·τ + (s0 − u_start + r·τ)·e^(−t/τ).
+        lag = (u_end - u_start) / h * self.tau
+        return u_end - lag + (state - u_start + lag) * jnp.exp(-h / self.tau)
+
 
 class SecondOrderInput(AbstractInputStage):
     """Drive amplifier with a two-pole low-pass: ``s̈ = ω²(u − s) − 2ζω·ṡ``.
