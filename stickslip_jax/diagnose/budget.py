@@ -61,9 +61,9 @@ DRIVE_STAGE_FACTOR = 2.5
 hysteresis is then evaluated at every RK4 stage instead of once per sample interval,
 and the stage is integrated apart at its own step (:mod:`stickslip_jax.drive_path`).
 Measured (``benchmarks/bench_drive_stage.py``, the 17-recording protocol, a Jacobian
-of 4 columns against the same without a stage): 1.5x for a 20 µs low-pass, 1.6x at
-5 µs, 1.9x at 1 µs, 2.9x for a 1 µs slew-limited stage, 1.6x for a 60 kHz two-pole
-stage. Before the stage was integrated apart its poles set the mechanical sub-step,
+of 4 columns against the same without a stage, at 4858aa4): 1.45x for a low-pass of
+20, 5 or 1 µs (closed form), 3.1x for a 1 µs slew-limited stage, 1.8x for a 60 kHz
+two-pole stage. Before the stage was integrated apart its poles set the mechanical sub-step,
 and a 1 µs amplifier cost 24x (80 sub-steps per sample against 9), which this factor
 undercounted. Other fast modes (a refitted baseline with a stiff contact, a high
 structural mode) still multiply the sub-steps uncounted; counting the plan's
