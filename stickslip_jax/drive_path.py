@@ -71,14 +71,20 @@ def stage_slice(actuator: Actuator) -> slice:
     return slice(N_CORE, N_CORE + actuator.input_stage.n_states)
 
 
-def grid_points(c_unique, substeps: int) -> tuple[np.ndarray, np.ndarray]:
-    """The sorted distinct stage times of ``substeps`` sub-steps with stage fractions
-    ``c_unique`` (fractions of the span, first 0, last 1), and for each sub-step and
-    fraction its index among them, shape (substeps, len(c_unique))."""
-    times = (np.arange(substeps)[:, None] + np.asarray(c_unique)[None, :]) / substeps
-    points = np.unique(np.round(times, 14))
-    index = np.searchsorted(points, np.round(times, 14))
-    return points, index
+def stage_grid(stage_times, substeps: int) -> np.ndarray:
+    """The stage times of ``substeps`` equal sub-steps with stage fractions
+    ``stage_times`` (first 0, last 1), as fractions of the span, shape
+    (substeps, len(stage_times))."""
+    return (np.arange(substeps)[:, None] + np.asarray(stage_times)[None, :]) / substeps
+
+
+def grid_points(stage_times, substeps: int) -> tuple[np.ndarray, np.ndarray]:
+    """The sorted distinct points of :func:`stage_grid` (the end of one sub-step is the
+    start of the next), and for each sub-step and fraction its index among them,
+    shape (substeps, len(stage_times))."""
+    times = np.round(stage_grid(stage_times, substeps), 14)
+    points = np.unique(times)
+    return points, np.searchsorted(points, times)
 
 
 def stage_table(stage: AbstractInputStage, s0, u_a, du, dt, points, steps: int):

@@ -37,6 +37,12 @@ class ExplicitRK(eqx.Module):
     order: int = eqx.field(static=True)
     locate_events: bool = eqx.field(static=True, default=True)
 
+    @property
+    def stage_times(self) -> tuple[float, ...]:
+        """The distinct stage times and the step's end, sorted (fractions of the
+        sub-step; classic RK4: 0, 1/2, 1): where the vector field is evaluated."""
+        return tuple(sorted(set(self.c) | {1.0}))
+
     def with_events(self, locate: bool) -> ExplicitRK:
         """The same tableau, with or without event location (see ``locate_events``)."""
         return dataclasses.replace(self, locate_events=bool(locate))

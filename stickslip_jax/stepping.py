@@ -33,6 +33,7 @@ the trace moves by about the tolerance, far below any sensor's noise.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -45,6 +46,7 @@ from .drive_path import (
     has_closed_form,
     held_mechanics,
     separate_stage,
+    stage_grid,
     stage_slice,
     stage_table,
     table_voltage,
@@ -98,18 +100,34 @@ def _rest_jacobian(actuator: Actuator, drive: DriveContext):
     return jax.jacfwd(lambda y: actuator.vector_field(y, 0.0, stroke, drive))(y0)
 
 
-def _rest_eigenvalues(actuator: Actuator, drive: DriveContext | None, rows) -> float:
+class _RestRates(NamedTuple):
+    """Spectral radii [rad/s] of the Jacobian at rest under 0 V: all of it, the
+    mechanical block (without the input stage's rows) and the stage's own block."""
+
+    fastest: float
+    mechanical: float
+    stage: float
+
+
+def _rest_rates(actuator: Actuator, drive: DriveContext | None = None) -> _RestRates:
     # Concrete values inside someone else's trace too (a loss compiled by an optimiser
-    # that closes over a concrete actuator).
+    # that closes over a concrete actuator). One Jacobian for all three radii.
     with jax.ensure_compile_time_eval():
         drive = DriveContext.make() if drive is None else drive
         jac = np.asarray(_rest_jacobian(actuator, drive), dtype=float)
-    jac = jac[np.ix_(rows, rows)]
-    if not np.all(np.isfinite(jac)):
-        return math.inf
-    if jac.size == 0:
-        return 0.0
-    return float(np.max(np.abs(np.linalg.eigvals(jac))))
+    stage = _stage_rows(actuator)
+    everything = np.arange(actuator.n_states)
+
+    def radius(rows):
+        block = jac[np.ix_(rows, rows)]
+        if not np.all(np.isfinite(block)):
+            return math.inf
+        if block.size == 0:
+            return 0.0
+        return float(np.max(np.abs(np.linalg.eigvals(block))))
+
+    return _RestRates(radius(everything), radius(np.setdiff1d(everything, stage)),
+                      radius(stage))
 
 
 def _stage_rows(actuator: Actuator) -> np.ndarray:
@@ -122,7 +140,7 @@ def fastest_rate(actuator: Actuator, drive: DriveContext | None = None) -> float
     The fastest linear time scale of the whole model (piezo stick mode, slider on the
     contact, input-stage poles, extension modes), from concrete parameter values.
     """
-    return _rest_eigenvalues(actuator, drive, np.arange(actuator.n_states))
+    return _rest_rates(actuator, drive).fastest
 
 
 def mechanical_rate(actuator: Actuator, drive: DriveContext | None = None) -> float:
@@ -131,14 +149,13 @@ def mechanical_rate(actuator: Actuator, drive: DriveContext | None = None) -> fl
     Jacobian is block-triangular and its eigenvalues are those of the mechanical block
     and of the stage's (:func:`stage_rate`); the stage is integrated apart
     (:mod:`stickslip_jax.drive_path`)."""
-    rows = np.setdiff1d(np.arange(actuator.n_states), _stage_rows(actuator))
-    return _rest_eigenvalues(actuator, drive, rows)
+    return _rest_rates(actuator, drive).mechanical
 
 
 def stage_rate(actuator: Actuator, drive: DriveContext | None = None) -> float:
     """Spectral radius of the input stage's own Jacobian block at rest [rad/s] (0
     without stage states)."""
-    return _rest_eigenvalues(actuator, drive, _stage_rows(actuator))
+    return _rest_rates(actuator, drive).stage
 
 
 def time_scale_report(actuator: Actuator) -> str:
@@ -254,9 +271,23 @@ class Stepping(eqx.Module):
     def longest_step(self, actuator: Actuator) -> float:
         """The longest coarse step [s] for this actuator (its mechanics: an input
         stage is integrated apart at its own step, :meth:`stage_steps`)."""
+        return self._longest_step(actuator, self._rates(actuator))
+
+    def stage_steps(self, actuator: Actuator, gap: float) -> int:
+        """RK4 steps of the input stage per ``gap`` [s] between stage times: enough
+        that each is at most ``radians_per_step`` of the stage's fastest pole. 1 without
+        stage states, for a stage advanced in closed form, or for traced values (then
+        ``max_step`` should resolve it)."""
+        return self._stage_steps(actuator, gap, self._rates(actuator))
+
+    @staticmethod
+    def _rates(actuator: Actuator) -> _RestRates | None:
+        return _rest_rates(actuator) if _concrete(actuator) else None
+
+    def _longest_step(self, actuator: Actuator, rates: _RestRates | None) -> float:
         rate = None
-        if _concrete(actuator):
-            rate = mechanical_rate(actuator) if self.stage_apart else fastest_rate(actuator)
+        if rates is not None:
+            rate = rates.mechanical if self.stage_apart else rates.fastest
             if not (math.isfinite(rate) and rate > 0):
                 raise SteppingError(
                     "the model's linearisation at rest is not finite; check the "
@@ -275,16 +306,13 @@ class Stepping(eqx.Module):
             step = FALLBACK_MAX_STEP_S
         return step
 
-    def stage_steps(self, actuator: Actuator, gap: float) -> int:
-        """RK4 steps of the input stage per ``gap`` [s] between stage times: enough
-        that each is at most ``radians_per_step`` of the stage's fastest pole. 1 without
-        stage states, for a stage advanced in closed form, or for traced values (then
-        ``max_step`` should resolve it)."""
+    def _stage_steps(self, actuator: Actuator, gap: float,
+                     rates: _RestRates | None) -> int:
         stage = actuator.input_stage
         if (stage.n_states == 0 or not self.stage_apart or has_closed_form(stage)
-                or not _concrete(actuator)):
+                or rates is None):
             return 1
-        rate = stage_rate(actuator)
+        rate = rates.stage
         if not (math.isfinite(rate) and rate >= 0):
             raise SteppingError("the input stage's linearisation at rest is not finite; "
                                 "check its parameters")
@@ -310,7 +338,8 @@ class Stepping(eqx.Module):
         dt_max = float(np.max(np.asarray(dt, dtype=float)))
         if not (math.isfinite(dt_max) and dt_max > 0):
             raise ValueError(f"dt must be a finite time > 0 [s], got {dt!r}")
-        step = self.longest_step(actuator)
+        rates = self._rates(actuator)      # one Jacobian at rest for both steps
+        step = self._longest_step(actuator, rates)
         if self.substeps is not None:
             n = int(self.substeps)
         else:
@@ -325,10 +354,9 @@ class Stepping(eqx.Module):
                 + ". A natural frequency far above 100 kHz usually means a unit slip "
                 "(Kp in N/µm read as N/m, Mp in g read as kg)."
             )
-        c_unique = sorted(set(self.solver.c) | {1.0})
-        gap = dt_max / n * float(np.max(np.diff(c_unique)))
+        gap = dt_max / n * float(np.max(np.diff(self.solver.stage_times)))
         return StepPlan(n, self.refine, self.tolerance, self.radians_per_step, self.solver,
-                        self.stage_steps(actuator, gap), self.stage_apart)
+                        self._stage_steps(actuator, gap, rates), self.stage_apart)
 
 
 DEFAULT_STEPPING = Stepping()
@@ -414,10 +442,10 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
     velocity_time = dt / plan.substeps / plan.radians_per_step   # 1/ω_max when planned
     weights = jnp.stack([1.0, velocity_time, 1.0, velocity_time, 1.0])
     # Distinct stage times of the solver (RK4: 0, 1/2, 1) and each stage's column.
-    c_unique = tuple(sorted(set(solver.c) | {1.0}))
-    column = tuple(c_unique.index(c) for c in solver.c)
-    end_column = c_unique.index(1.0)
-    grid = jnp.asarray((np.arange(n)[:, None] + np.asarray(c_unique)[None, :]) / n)
+    times = solver.stage_times
+    column = tuple(times.index(c) for c in solver.c)
+    end_column = times.index(1.0)
+    grid = jnp.asarray(stage_grid(times, n))
     fast = actuator.stroke_follows_command
     embedded = len(solver.c) == 4 and solver.order == 4
     # An input stage with states is integrated apart, onto the stage times
@@ -425,7 +453,7 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
     separate = plan.stage_apart and separate_stage(actuator)
     mechanics = held_mechanics(actuator) if separate else actuator
     if separate:
-        points_np, point_index = grid_points(c_unique, n)
+        points_np, point_index = grid_points(times, n)
         stage_at = stage_slice(actuator)
 
     def stroke_rows(memory, u):
@@ -456,10 +484,13 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
         def substep(j, state):
             y, memory, k1, total = state
 
-            def field_at(tau, yy):
-                u = voltage(tau)
+            def field_with(u, yy):
+                # The vector field at piezo voltage u, the stroke from the memory.
                 return mechanics.vector_field(yy, u, mechanics.free_stroke(yy, memory, u),
                                               drive)
+
+            def field_at(tau, yy):
+                return field_with(voltage(tau), yy)
 
             if fast:
                 u_row = jax.lax.dynamic_index_in_dim(u_stage, j, keepdims=False)
@@ -471,9 +502,7 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
                 at = jnp.asarray(point_index)[j]
 
                 def on_grid(col, yy):
-                    u = volts[at[col]]
-                    return mechanics.vector_field(yy, u, mechanics.free_stroke(yy, memory, u),
-                                                  drive)
+                    return field_with(volts[at[col]], yy)
             else:
                 row = jax.lax.dynamic_index_in_dim(fractions, j, keepdims=False)
 
@@ -507,8 +536,8 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
                 memory = mechanics.commit_memory(y1, memory, u_end)
             return y1, memory, k_end, total + err
 
-        k0 = mechanics.vector_field(y, voltage(tau0),
-                                    mechanics.free_stroke(y, memory, voltage(tau0)), drive)
+        u0 = voltage(tau0)
+        k0 = mechanics.vector_field(y, u0, mechanics.free_stroke(y, memory, u0), drive)
         # Zeros typed like the state (under shard_map a loop carry must keep the state's
         # varying axes).
         zero = jnp.zeros_like(y[0])
