@@ -131,13 +131,14 @@ def _rate(hits: int, n: int) -> dict:
     return {"count": hits, "of": n, "rate": hits / n if n else None}
 
 
-def detection_bins(rows: list[dict]) -> list[dict]:
-    """Per bin of effect size over noise: of the sets hiding a catalogue entry, the
-    share named right first; of all non-null sets, the share flagged (anything but
-    "baseline adequate")."""
+def detection_bins(rows: list[dict], size: str = "effect_to_noise") -> list[dict]:
+    """Per bin of ``size`` (effect size over noise, or its part beyond what the
+    baseline absorbs to first order, ``beyond_to_noise``): of the sets hiding a
+    catalogue entry, the share named right first; of all non-null sets, the share
+    flagged (anything but "baseline adequate")."""
     out = []
     for lo, hi in zip(BINS[:-1], BINS[1:], strict=True):
-        inside = [r for r in rows if r["hidden"] != "none" and lo <= r["effect_to_noise"] < hi]
+        inside = [r for r in rows if r["hidden"] != "none" and lo <= r[size] < hi]
         cat = [r for r in inside if r["hidden"] != "uncatalogued"]
         out.append({"bin": [lo, hi], "right_first": _rate(sum(r["right_first"] for r in cat),
                                                            len(cat)),
@@ -171,6 +172,7 @@ def summary(rows: list[dict]) -> dict:
         "excess_halved_where_named": _rate(
             sum((r["excess_removed"] or 0.0) >= 0.5 for r in named), len(named)),
         "detection_vs_effect_to_noise": detection_bins(rows),
+        "detection_vs_beyond_to_noise": detection_bins(rows, "beyond_to_noise"),
         "wall_s": {"mean": float(np.mean(walls)), "median": float(np.median(walls)),
                    "max": float(np.max(walls))} if walls else None,
         "confusion": m,
@@ -198,47 +200,62 @@ def print_summary(rows: list[dict], s: dict) -> None:
               "right_first", "right_first_catalogue_form", "right_first_other_form",
               "uncatalogued_unexplained", "excess_halved_where_named"):
         print(f"- {k.replace('_', ' ')}: {_pct(s[k])}")
-    print("- detection against effect size / noise (right first | flagged):")
-    for b in s["detection_vs_effect_to_noise"]:
-        print(f"  [{b['bin'][0]:g}, {b['bin'][1]:g}): {_pct(b['right_first'])} | "
-              f"{_pct(b['flagged'])}")
+    for key, what in (("detection_vs_effect_to_noise", "effect size / noise"),
+                      ("detection_vs_beyond_to_noise",
+                       "effect beyond the baseline's first-order absorption / noise")):
+        print(f"- detection against {what} (right first | flagged):")
+        for b in s.get(key, []):
+            print(f"  [{b['bin'][0]:g}, {b['bin'][1]:g}): {_pct(b['right_first'])} | "
+                  f"{_pct(b['flagged'])}")
     if s["wall_s"]:
         w = s["wall_s"]
         print(f"- diagnose wall time per set: mean {w['mean']:.0f} s, median "
               f"{w['median']:.0f} s, max {w['max']:.0f} s")
 
 
+def _detection_panel(ax, rows: list[dict], bins: list[dict], size: str, label: str) -> None:
+    """Right-first points (catalogue and other forms) and the binned rates against
+    ``size``."""
+    rng = np.random.default_rng(0)  # jitter of the points, for legibility only
+    for cat_form, marker in ((True, "o"), (False, "^")):
+        pts = [r for r in rows if r["hidden"] not in ("none", "uncatalogued")
+               and r["catalogue_form"] == cat_form]
+        ax.scatter([max(r[size], 0.06) for r in pts],
+                   [float(r["right_first"]) + rng.uniform(-0.04, 0.04) for r in pts],
+                   marker=marker, alpha=0.6,
+                   label=f"{'catalogue' if cat_form else 'other'} form (1: right first)")
+    centres, right, flagged = [], [], []
+    for bn in bins:
+        lo, hi = bn["bin"]
+        centres.append(np.sqrt(max(lo, 0.1) * (hi if np.isfinite(hi) else 100.0)))
+        right.append(np.nan if bn["right_first"]["rate"] is None else bn["right_first"]["rate"])
+        flagged.append(np.nan if bn["flagged"]["rate"] is None else bn["flagged"]["rate"])
+    ax.plot(centres, right, "k-", label="rate named right first (bins)")
+    ax.plot(centres, flagged, "k--", label="rate flagged at all (bins)")
+    ax.set_xscale("log")
+    ax.set_xlim(0.05, 200.0)  # the same axis on every run, however few the sets
+    ax.set_xlabel(label)
+    ax.set_ylabel("rate")
+    ax.set_ylim(-0.1, 1.1)
+    ax.legend(fontsize=7, loc="center right")
+
+
 def figure(rows: list[dict], s: dict, path: Path) -> None:
-    """Detection against effect size over noise, and the confusion matrix."""
+    """Detection against effect size over noise (whole, and beyond the baseline's
+    first-order absorption), and the confusion matrix."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(13, 5), gridspec_kw={"width_ratios": [1, 1.3]})
-    rng = np.random.default_rng(0)  # jitter of the points, for legibility only
-    for cat_form, marker in ((True, "o"), (False, "^")):
-        pts = [r for r in rows if r["hidden"] not in ("none", "uncatalogued")
-               and r["catalogue_form"] == cat_form]
-        a.scatter([r["effect_to_noise"] for r in pts],
-                  [float(r["right_first"]) + rng.uniform(-0.04, 0.04) for r in pts],
-                  marker=marker, alpha=0.6,
-                  label=f"{'catalogue' if cat_form else 'other'} form (1: right first)")
-    centres, right, flagged = [], [], []
-    for bn in s["detection_vs_effect_to_noise"]:
-        lo, hi = bn["bin"]
-        centres.append(np.sqrt(max(lo, 0.1) * (hi if np.isfinite(hi) else 100.0)))
-        right.append(np.nan if bn["right_first"]["rate"] is None else bn["right_first"]["rate"])
-        flagged.append(np.nan if bn["flagged"]["rate"] is None else bn["flagged"]["rate"])
-    a.plot(centres, right, "k-", label="rate named right first (bins)")
-    a.plot(centres, flagged, "k--", label="rate flagged at all (bins)")
-    a.set_xscale("log")
-    a.set_xlim(0.05, 200.0)  # the same axis on every run, however few the sets
-    a.set_xlabel("effect size / noise (RMS, offset removed)")
-    a.set_ylabel("rate")
-    a.set_ylim(-0.1, 1.1)
-    a.legend(fontsize=8, loc="center right")
+    fig, (a, a2, b) = plt.subplots(1, 3, figsize=(18, 5),
+                                   gridspec_kw={"width_ratios": [1, 1, 1.3]})
+    _detection_panel(a, rows, s["detection_vs_effect_to_noise"], "effect_to_noise",
+                     "effect size / noise (RMS, offset removed)")
     a.set_title("detection against effect size")
+    _detection_panel(a2, rows, s["detection_vs_beyond_to_noise"], "beyond_to_noise",
+                     "effect beyond the baseline's first-order absorption / noise")
+    a2.set_title("detection against what the baseline cannot absorb")
     m = s["confusion"]
     hidden = [h for h in HIDDEN if sum(m[h].values())]
     grid = np.array([[m[h][c] for c in COLUMNS] for h in hidden])
@@ -257,6 +274,15 @@ def figure(rows: list[dict], s: dict, path: Path) -> None:
     print(f"wrote {path}")
 
 
+def save(path: Path | None, meta: dict, rows: list[dict]) -> None:
+    """The rows and their summary to ``path`` (if given), sets in index order."""
+    if path:
+        rows = sorted(rows, key=lambda r: r["index"])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({**meta, "jax": jax.__version__, "rows": rows,
+                                    "summary": summary(rows)}, indent=1, default=float))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SEEDS), required=True)
@@ -266,6 +292,9 @@ def main() -> None:
                     help="the tests' 8-recording protocol and settings (a smoke run)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None)
+    ap.add_argument("--merge", type=Path, nargs="+", default=[],
+                    help="JSON files of other runs of the same split (parallel halves): "
+                         "their rows join this run's (a set already here is kept)")
     args = ap.parse_args()
     seed = SEEDS[args.split]
     chosen = [int(s) for s in args.sets.split(",") if s] or list(range(args.n))
@@ -277,6 +306,12 @@ def main() -> None:
             sys.exit(f"{args.json} holds another run ({ {k: old.get(k) for k in meta} }); "
                      f"give another --json")
         rows = old["rows"]
+    for path in args.merge:
+        other = json.loads(path.read_text())
+        if {k: other.get(k) for k in meta} != meta:
+            sys.exit(f"{path} holds another run ({ {k: other.get(k) for k in meta} })")
+        have = {r["index"] for r in rows}
+        rows += [r for r in other["rows"] if r["index"] not in have]
     done = {r["index"] for r in rows}
     for i in chosen:
         if i in done:
@@ -289,11 +324,9 @@ def main() -> None:
         print(json.dumps({k: r[k] for k in ("set", "hidden", "form", "effect_to_noise",
                                             "verdict", "named", "wall_s", "simulate_s")},
                          default=str), flush=True)
-        if args.json:  # after every set: a later crash keeps the rows done
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps({**meta, "jax": jax.__version__, "rows": rows,
-                                             "summary": summary(rows)}, indent=1,
-                                            default=float))
+        save(args.json, meta, rows)  # after every set: a later crash keeps the rows done
+    if args.merge:
+        save(args.json, meta, rows)
     rows = [r for r in rows if r["index"] in chosen] if args.sets else rows
     s = summary(rows)
     print_summary(rows, s)
