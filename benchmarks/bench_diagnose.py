@@ -97,6 +97,8 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
         "chi2_before": d.chi2_baseline, "chi2_after": d.chi2_final,
         "unexplained_depends_on": (d.unexplained or {}).get("depends_on"),
         "wall_s": wall, "timings_s": d.timings,
+        "tolerance_chi2": d.significance.get("tolerance_chi2"),
+        "detection_limits": d.detection_limits,
     }
 
 

@@ -30,6 +30,7 @@ and the confusion matrix.
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 import time
@@ -147,6 +148,16 @@ def detection_bins(rows: list[dict], size: str = "effect_to_noise") -> list[dict
     return out
 
 
+def above_limit(row: dict) -> bool | None:
+    """Whether the effect is above the diagnosis's detection limit on its set: the
+    part the baseline cannot absorb to first order adds more to the mean ``(e/σ)²``
+    than the set's tolerance of practical significance (``beyond_to_noise² >
+    tolerance_chi2``; the definition of :mod:`stickslip_jax.diagnose.scores`'s limits).
+    None when the row has no tolerance."""
+    tol = row.get("tolerance_chi2")
+    return None if tol is None else bool(row["beyond_to_noise"] ** 2 > tol)
+
+
 def summary(rows: list[dict]) -> dict:
     null = [r for r in rows if r["hidden"] == "none"]
     cat = [r for r in rows if r["hidden"] not in ("none", "uncatalogued")]
@@ -161,6 +172,13 @@ def summary(rows: list[dict]) -> dict:
         "wrong_name_first": _rate(sum(r["wrong_first"] for r in rows), len(rows)),
         "wrong_name_any": _rate(sum(r["wrong_any"] for r in rows), len(rows)),
         "right_first": _rate(sum(r["right_first"] for r in cat), len(cat)),
+        "right_first_above_limit": _rate(
+            sum(r["right_first"] for r in cat if above_limit(r)),
+            sum(bool(above_limit(r)) for r in cat)),
+        "flagged_below_limit": _rate(
+            sum(r["outcome"] != ADEQUATE for r in rows if r["hidden"] != "none"
+                and above_limit(r) is False),
+            sum(r["hidden"] != "none" and above_limit(r) is False for r in rows)),
         "right_first_catalogue_form": _rate(
             sum(r["right_first"] for r in cat if r["catalogue_form"]),
             sum(r["catalogue_form"] for r in cat)),
@@ -197,7 +215,8 @@ def print_summary(rows: list[dict], s: dict) -> None:
               f"{r['wall_s']:.0f} s |")
     print("\n" + s["confusion_markdown"] + "\n")
     for k in ("null_false_positives", "null_unexplained", "wrong_name_first", "wrong_name_any",
-              "right_first", "right_first_catalogue_form", "right_first_other_form",
+              "right_first", "right_first_above_limit", "flagged_below_limit",
+              "right_first_catalogue_form", "right_first_other_form",
               "uncatalogued_unexplained", "excess_halved_where_named"):
         print(f"- {k.replace('_', ' ')}: {_pct(s[k])}")
     for key, what in (("detection_vs_effect_to_noise", "effect size / noise"),
@@ -274,6 +293,22 @@ def figure(rows: list[dict], s: dict, path: Path) -> None:
     print(f"wrote {path}")
 
 
+def tolerances_from_logs(rows: list[dict], logs: list[Path]) -> None:
+    """Set ``tolerance_chi2`` on rows without it from runs' printed output (the first
+    ``[significance] tolerance: mean (e/σ)² within 1 + τ`` line after ``== set_NN``)."""
+    found: dict[str, float] = {}
+    for log in logs:
+        name = None
+        for line in log.read_text().splitlines():
+            if line.startswith("== set_"):
+                name = line.split()[1].rstrip(":")
+            elif name and "[significance] tolerance" in line and name not in found:
+                found[name] = float(re.search(r"within 1 \+ ([0-9.eE+-]+)", line).group(1))
+    for r in rows:
+        if r.get("tolerance_chi2") is None and r["set"] in found:
+            r["tolerance_chi2"] = found[r["set"]]
+
+
 def save(path: Path | None, meta: dict, rows: list[dict]) -> None:
     """The rows and their summary to ``path`` (if given), sets in index order."""
     if path:
@@ -295,6 +330,9 @@ def main() -> None:
     ap.add_argument("--merge", type=Path, nargs="+", default=[],
                     help="JSON files of other runs of the same split (parallel halves): "
                          "their rows join this run's (a set already here is kept)")
+    ap.add_argument("--logs", type=Path, nargs="+", default=[],
+                    help="the printed output of the runs: rows recorded before rows "
+                         "carried the tolerance take it from the '[significance]' line")
     args = ap.parse_args()
     seed = SEEDS[args.split]
     chosen = [int(s) for s in args.sets.split(",") if s] or list(range(args.n))
@@ -312,6 +350,7 @@ def main() -> None:
             sys.exit(f"{path} holds another run ({ {k: other.get(k) for k in meta} })")
         have = {r["index"] for r in rows}
         rows += [r for r in other["rows"] if r["index"] not in have]
+    tolerances_from_logs(rows, args.logs)
     done = {r["index"] for r in rows}
     for i in chosen:
         if i in done:
