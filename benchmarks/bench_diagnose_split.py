@@ -223,7 +223,7 @@ def print_summary(rows: list[dict], s: dict) -> None:
                       ("detection_vs_beyond_to_noise",
                        "effect beyond the baseline's first-order absorption / noise")):
         print(f"- detection against {what} (right first | flagged):")
-        for b in s.get(key, []):
+        for b in s[key]:
             print(f"  [{b['bin'][0]:g}, {b['bin'][1]:g}): {_pct(b['right_first'])} | "
                   f"{_pct(b['flagged'])}")
     if s["wall_s"]:

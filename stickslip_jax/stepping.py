@@ -481,16 +481,15 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
             def voltage(tau):
                 return u_a + du * tau
 
+        def field_with(u, yy, memory):
+            # The vector field at piezo voltage u, the stroke from the memory.
+            return mechanics.vector_field(yy, u, mechanics.free_stroke(yy, memory, u), drive)
+
         def substep(j, state):
             y, memory, k1, total = state
 
-            def field_with(u, yy):
-                # The vector field at piezo voltage u, the stroke from the memory.
-                return mechanics.vector_field(yy, u, mechanics.free_stroke(yy, memory, u),
-                                              drive)
-
             def field_at(tau, yy):
-                return field_with(voltage(tau), yy)
+                return field_with(voltage(tau), yy, memory)
 
             if fast:
                 u_row = jax.lax.dynamic_index_in_dim(u_stage, j, keepdims=False)
@@ -502,7 +501,7 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
                 at = jnp.asarray(point_index)[j]
 
                 def on_grid(col, yy):
-                    return field_with(volts[at[col]], yy)
+                    return field_with(volts[at[col]], yy, memory)
             else:
                 row = jax.lax.dynamic_index_in_dim(fractions, j, keepdims=False)
 
@@ -536,8 +535,7 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
                 memory = mechanics.commit_memory(y1, memory, u_end)
             return y1, memory, k_end, total + err
 
-        u0 = voltage(tau0)
-        k0 = mechanics.vector_field(y, u0, mechanics.free_stroke(y, memory, u0), drive)
+        k0 = field_with(voltage(tau0), y, memory)
         # Zeros typed like the state (under shard_map a loop carry must keep the state's
         # varying axes).
         zero = jnp.zeros_like(y[0])
