@@ -10,7 +10,14 @@ import numpy as np
 import pytest
 
 import stickslip_jax as ss
-from stickslip_jax.diagnose.catalogue import CATALOGUE, NAMES, Candidate, CatalogueEntry, candidate
+from stickslip_jax.diagnose.catalogue import (
+    CATALOGUE,
+    NAMES,
+    PROBE_TAU_DRIVE,
+    Candidate,
+    CatalogueEntry,
+    candidate,
+)
 from stickslip_jax.diagnose.policy import (
     COMPETITIVE_SHARE,
     LATER_SCORE_SHARE,
@@ -350,3 +357,25 @@ def test_the_verdict_says_partly_explained_beside_a_kept_entry():
     assert _verdict(True, []) is Verdict.UNEXPLAINED
     assert _verdict(False, [kept]) is Verdict.AUGMENTED
     assert _verdict(False, []) is Verdict.BASELINE_ADEQUATE
+
+
+def test_a_sub_microsecond_drive_low_pass_is_attached_at_its_measured_lag():
+    # The probe's share of its 20 µs stage's lag maps to τ = share·20 µs, also below
+    # 2 µs: the stage advances in closed form apart from the mechanics, so no floor
+    # is needed (a 2 µs floor started a 0.67 µs amplifier at 3x its lag).
+    act = ss.lu2015_slc1720()
+    cand = candidate("drive_bandwidth")
+    probe = next(p for p in cand.probes(act, {}) if p.setting["form"] == "low-pass")
+    for share in (0.0335, 0.5):
+        start, specs = cand.attach(act, share, probe)
+        assert float(start.input_stage.tau) == pytest.approx(share * PROBE_TAU_DRIVE)
+        assert list(specs) == ["drive_tau"]
+    # And a simulation with it is finite and lags a ramp by about τ.
+    start, _ = cand.attach(act, 0.0335, probe)
+    dt = 2e-5
+    u = np.linspace(0.0, 50.0, 100)                   # a 2 ms ramp, 25 V/ms
+    q_with = np.asarray(ss.simulate(start, u, dt=dt))
+    q_without = np.asarray(ss.simulate(act, u, dt=dt))
+    assert np.all(np.isfinite(q_with))
+    lag = (q_without[-1] - q_with[-1]) / (np.gradient(q_without, dt)[-1])
+    assert lag == pytest.approx(0.0335 * PROBE_TAU_DRIVE, rel=0.1)

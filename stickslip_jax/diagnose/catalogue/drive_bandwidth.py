@@ -80,8 +80,13 @@ class DriveBandwidthEntry(CatalogueEntry):
         st = probe.setting
         mix = max(float(strength), 1e-3)
         if st["form"] == "low-pass":
+            # No floor on τ: the low-pass advances in closed form, apart from the
+            # mechanics (:mod:`stickslip_jax.drive_path`), so a sub-µs amplifier costs
+            # no sub-steps. (A floor of 2 µs, from when the stage sat inside the
+            # mechanical RK4 step, started a 0.67 µs amplifier at 3x its lag, a start
+            # its sizing never left.)
             new = eqx.tree_at(lambda a: a.input_stage, act,
-                              LowPassInput(max(mix * st["tau"], 2e-6), 1.0))
+                              LowPassInput(mix * st["tau"], 1.0))
             return new, {"drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0,
                                                     "s")}
         top = st["max_slew"]
