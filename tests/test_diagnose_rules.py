@@ -6,6 +6,7 @@
 import inspect
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -26,17 +27,20 @@ from stickslip_jax.diagnose.policy import (
     SECOND_LOOK_CHI2,
     Policy,
 )
+from stickslip_jax.diagnose.problem import ProjectedResiduals
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.rules import (
     fallback_refits,
     far_from_noise,
     first_refits,
     identification_bent,
+    rank_value,
     reidentify_order,
     second_look,
     why_not_refitted,
 )
 from stickslip_jax.diagnose.sizing import worth_sizing_after_acceptance
+from stickslip_jax.identify.solve import solve_least_squares
 
 
 def _ranked(*values):
@@ -379,3 +383,52 @@ def test_a_sub_microsecond_drive_low_pass_is_attached_at_its_measured_lag():
     assert np.all(np.isfinite(q_with))
     lag = (q_without[-1] - q_with[-1]) / (np.gradient(q_without, dt)[-1])
     assert lag == pytest.approx(0.0335 * PROBE_TAU_DRIVE, rel=0.1)
+
+
+def test_an_entry_the_baseline_absorbed_is_ranked_by_its_drop_with_the_baseline_free():
+    # Held, the absorbed entry removes a tenth of the leader's drop (below the
+    # competitive share); with the baseline free to first order it removes more than the
+    # leader: it leads, and the leader still gets its first refit beside it.
+    lead = 0.4 * EXCESS
+    ranked = _ranked(("sensor_delay", lead, lead),
+                     ("drive_bandwidth", 0.03 * lead, 0.1 * lead))
+    assert [r.name for r in first_refits(ranked, top=3)] == ["sensor_delay"]
+    ranked[0].size_drop_free = 1.05 * lead
+    ranked[1].size_drop_free = 1.2 * lead
+    ranked.sort(key=lambda r: -rank_value(r))
+    assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth",
+                                                             "sensor_delay"]
+    # A free drop never lifts an entry whose held sizing raised the cost.
+    ranked[1].size_drop = -1.0
+    assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth"]
+
+
+class _Line(eqx.Module):
+    """A linear residual ``A θ − y``: the entry's columns of a linear problem."""
+
+    a: np.ndarray
+    y: np.ndarray
+
+    def __call__(self, theta, args=None):
+        return self.a @ theta - self.y
+
+
+def test_the_projected_fit_is_the_joint_fit_with_the_baseline_linear():
+    # Variable projection: fitting the entry's parameters to the residual less its part
+    # in the baseline's span gives the entry's values and the cost of the joint fit of
+    # entry and baseline (exact when the baseline enters linearly).
+    rng = np.random.default_rng(7)
+    n, k_base, k_entry = 400, 6, 2
+    j_base = rng.normal(size=(n, k_base))
+    a = rng.normal(size=(n, k_entry)) + 0.5 * j_base[:, :k_entry]  # partly mimicked
+    y = rng.normal(size=n) + a @ np.array([0.7, -1.3])
+    basis, _ = np.linalg.qr(j_base)
+    projected = ProjectedResiduals(_Line(a, y), jnp.asarray(basis))
+    out = solve_least_squares(projected, np.zeros(k_entry), max_steps=20,
+                              gn_tol=1e-6, label="projected")
+    joint, *_ = np.linalg.lstsq(np.hstack([a, j_base]), y, rcond=None)
+    joint_cost = float(np.sum((np.hstack([a, j_base]) @ joint - y) ** 2))
+    np.testing.assert_allclose(out.theta, joint[:k_entry], rtol=1e-5)
+    np.testing.assert_allclose(out.cost_end, joint_cost, rtol=1e-8)
+    held, *_ = np.linalg.lstsq(a, y, rcond=None)
+    assert out.cost_end < float(np.sum((a @ held - y) ** 2)) - 10.0  # not the held fit

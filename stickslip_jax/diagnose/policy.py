@@ -20,8 +20,9 @@ over ``N`` samples:
 - the *tolerance* ``τ`` (:mod:`.significance`): the excess of the mean ``(e/σ)²``
   over 1 that the data cannot tell from noise, made of the noise estimate's standard
   error and the simulator's numerical error;
-- the *rank value* of a sized entry: the larger of ``S`` and its sizing's drop of
-  ``Σ(e/σ)²`` (its own parameters fitted with the baseline held).
+- the *rank value* of a sized entry: the largest of ``S`` and its sizing's drops of
+  ``Σ(e/σ)²`` (its own parameters fitted with the baseline held, then with the
+  baseline free to first order: :mod:`.sizing`).
 
 Several defaults were tuned on the concealed fixture sets and their variants
 (:mod:`stickslip_jax.testing.concealed`) and have no statistical derivation yet; their

@@ -42,6 +42,21 @@ class WhitenedResiduals(eqx.Module):
         return (r * self.inv_sigma[:, None]).reshape(-1)
 
 
+class ProjectedResiduals(eqx.Module):
+    """``θ ↦`` the whitened residual less its part in the span of ``basis`` (columns
+    orthonormal, one row per residual sample): ``r − B(Bᵀr)`` [-]. With ``B`` spanning
+    the baseline's Jacobian, its sum of squares is the cost with the baseline free to
+    first order, ``min_δ |r + J_b δ|²`` (variable projection), without fitting the
+    baseline's tens of parameters."""
+
+    inner: WhitenedResiduals
+    basis: jax.Array
+
+    def __call__(self, theta, args=None):
+        r = self.inner(theta, args)
+        return r - self.basis @ (self.basis.T @ r)
+
+
 @eqx.filter_jit
 def _whitened_and_output(res: WhitenedResiduals):
     """Whitened residual and simulated outputs (B, T) [m] at ``res``'s actuator, from
@@ -121,7 +136,8 @@ class Problem:
         return np.sqrt(np.sum(rows**2, axis=1) / n) / np.asarray(d.scale)
 
     def fit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
-            max_steps: int, initial_damping: float = 1.0) -> tuple[Actuator, float, object]:
+            max_steps: int, initial_damping: float = 1.0,
+            project: np.ndarray | None = None) -> tuple[Actuator, float, object]:
         """Least squares of the whitened residual over ``names`` from ``act``.
 
         It ends by the Gauss-Newton test (:data:`~stickslip_jax.identify.steps.
@@ -129,9 +145,13 @@ class Problem:
         tenth of a standard error), so that a fit said to converge is at its minimiser
         to a tenth of the errors the data allow, whatever its start; one that is not
         there after ``max_steps`` says so. ``initial_damping``: the LM damping at the
-        start (small for a start near the optimum)."""
+        start (small for a start near the optimum). ``project``: an orthonormal
+        basis (samples × k) whose span is taken out of the residual
+        (:class:`ProjectedResiduals`); the cost returned is then the projected one."""
         pmap = ParameterMap.make(act, list(names), specs)
         res = self.residuals(pmap)
+        if project is not None:
+            res = ProjectedResiduals(res, jnp.asarray(project))
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=label,
                                   gn_tol=JOINT_GN_TOL, initial_damping=initial_damping,
                                   echo=None)

@@ -77,6 +77,7 @@ def _per_recording(nrmse, analyses, numerical=None) -> list[dict]:
 
 def _evidence(c) -> dict:
     return {"score_statistic": c.score, "probe": c.probe, "sizing_drop": c.size_drop,
+            "sizing_drop_baseline_free": _finite(c.size_drop_free),
             "explained_share_of_excess": _finite(c.explained),
             "chi2_per_sample_after": _finite(c.chi2_after),
             "removed_nm": _finite(c.removed_nm),
@@ -96,7 +97,9 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "nrmse_after": c.nrmse_after, "criterion_delta": c.criterion_delta}
                for c in d.accepted]
     rounds = [[{"name": c.name, "score_statistic": c.score, "probe": c.probe,
-                "sizing_drop": c.size_drop, "refitted": c.refitted,
+                "sizing_drop": c.size_drop,
+                "sizing_drop_baseline_free": _finite(c.size_drop_free),
+                "refitted": c.refitted,
                 "criterion_delta": _finite(c.criterion_delta),
                 "explained_share_of_excess": _finite(c.explained),
                 "removed_nm": _finite(c.removed_nm),
@@ -213,14 +216,17 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
     lines += ["## Candidates scored", ""]
     for i, rnd in enumerate(content["candidates_by_round"], 1):
         lines += [f"Round {i}:", "",
-                  "| name | score | sizing drop | refitted | ΔBIC | explained | note |",
+                  "| name | score | sizing drop (baseline held, free) | refitted | ΔBIC "
+                  "| explained | note |",
                   "|---|---|---|---|---|---|---|"]
         for c in rnd:
             dbic = "" if c["criterion_delta"] is None else f"{c['criterion_delta']:.1f}"
             ex = ("" if c["explained_share_of_excess"] is None
                   else f"{100 * c['explained_share_of_excess']:.0f} %")
+            free = c.get("sizing_drop_baseline_free")
+            drops = f"{c['sizing_drop']:.3g}" + ("" if free is None else f", {free:.3g}")
             lines.append(f"| {c['name']} | {c['score_statistic']:.3g} | "
-                         f"{c['sizing_drop']:.3g} | {c['refitted']} | "
+                         f"{drops} | {c['refitted']} | "
                          f"{dbic} | {ex} | {c['note']} |")
         lines.append("")
     if content.get("detection_limits"):

@@ -66,6 +66,10 @@ class CandidateResult:
     score: float = 0.0
     strength: float = 0.0
     size_drop: float = 0.0
+    """What the sizing removed from the whitened cost, the baseline held (:mod:`.sizing`)."""
+    size_drop_free: float = -np.inf
+    """What the sizing removes with the baseline free to first order (never below
+    :attr:`size_drop`; ``-inf`` when not computed; :mod:`.sizing`)."""
     refitted: bool = False
     params: dict = field(default_factory=dict)
     rss_before: float = np.nan

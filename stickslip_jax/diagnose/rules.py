@@ -23,8 +23,9 @@ from .results import CandidateResult, CandidateStatus
 
 
 def rank_value(r: CandidateResult) -> float:
-    """What the refit order goes by: the larger of the score and the sizing's drop."""
-    return max(r.score, r.size_drop)
+    """What the refit order goes by: the largest of the score and the sizing's drops,
+    the baseline held and free to first order (:mod:`.sizing`)."""
+    return max(r.score, r.size_drop, r.size_drop_free)
 
 
 def explains(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:

@@ -30,9 +30,12 @@ it decides by is a field of its :class:`~.policy.Policy`:
    :attr:`~.Policy.later_score_share` of the excess left are sized. Entries with seeds
    (a rugged cost: the under-damped amplifier) are sized from their cheapest seed on
    the polished baseline and, in round one, on the baseline before its polish, the
-   better kept.
+   better kept. The sized entry is then fitted once more with the baseline free to
+   first order (the residual less its part in the span of ``J_b``: variable
+   projection), which predicts what its refit will remove where the baseline absorbed
+   part of the effect while it was identified.
 5. **Refit** (:func:`_refit_round`; the rules in :mod:`.rules`, the refits in
-   :mod:`.refit`) the ``top`` by the larger of ``S`` and the sizing's drop, those
+   :mod:`.refit`) the ``top`` by the largest of ``S`` and the sizing's drops, those
    below the leader only when within :attr:`~.Policy.competitive_share` of it and
    their sizing did not raise the cost (and, if none of them explains the residual,
    every other sized entry too: the first-order ranking misleads when the baseline
@@ -208,13 +211,13 @@ def _candidate_pool(candidates: Sequence[str] | None,
 def _score(problem: Problem, act: Actuator, base_names: list[str],
            pool: Sequence[Candidate], hints: dict):
     """Phase 3: the score test of every entry of ``pool`` at ``act``; the scores and
-    detection limits (:func:`~.scores.score_candidates`) and a result per entry, best
-    score first."""
-    scores, limits = score_candidates(problem, act, base_names, pool, hints)
+    detection limits and the baseline's first-order span (:func:`~.scores.
+    score_candidates`) and a result per entry, best score first."""
+    scores, limits, basis = score_candidates(problem, act, base_names, pool, hints)
     results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe, _) in
                sorted(scores.items(), key=lambda kv: -kv[1][0])]
     problem.say("[score] " + ", ".join(f"{r.name} {r.score:.3g}" for r in results))
-    return scores, results, limits
+    return scores, results, limits, basis
 
 
 def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Significance:
@@ -458,7 +461,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
 
         # 3. Score.
         t0 = time.perf_counter()
-        scores, results, limits = _score(problem, act, base.names, pool, hints)
+        scores, results, limits, basis = _score(problem, act, base.names, pool, hints)
         timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
         if rnd == 0:
             detection_limits = limits
@@ -471,12 +474,14 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                 break
 
         # 4. Size (either sign: a large effect can turn the first-order sign around),
-        # with the baseline held; rank by the larger of the score and the sizing's drop.
+        # with the baseline held, then free to first order; rank by the largest of the
+        # score and the sizing's drops.
         seeded = {c.name for c in pool if c.seeds(init)}
         chosen = chosen_for_sizing(results, seeded, size_at_most,
                                    rss - n_obs if accepted else None, say, policy)
         sized = size_entries(problem, chosen, pool, scores, act, base.unpolished, rss,
-                             base.names, seeded, round_one=rnd == 0, policy=policy)
+                             base.names, seeded, round_one=rnd == 0, policy=policy,
+                             baseline_span=basis)
         ranked = sorted([r for r in results if r.name in sized],
                         key=lambda r: -rank_value(r))
         if rnd == 0:

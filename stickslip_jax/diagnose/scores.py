@@ -54,11 +54,13 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
 def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
                      candidates: Sequence[Candidate], hints: dict):
     """Score test of every probe (see the module docstring). Returns ``(scores,
-    limits)``: ``scores`` a dict ``name → (score, strength, probe, shift)`` with each
+    limits, basis)``: ``scores`` a dict ``name → (score, strength, probe, shift)`` with each
     candidate's best probe, the Gauss-Newton strength and the baseline θ shift that
     goes with it; ``limits`` a dict ``name →`` detection limit (module docstring:
     ``strength`` in ``unit``, ``effect_nm``, ``probe``), empty until the problem has
-    its :attr:`~.problem.Problem.significance`."""
+    its :attr:`~.problem.Problem.significance`; ``basis`` an orthonormal basis (samples
+    × baseline parameters) of the span of ``J_b``, what the baseline can mimic to first
+    order (:mod:`.sizing` sizes in its complement too)."""
     probe_act, entries = install_probes(act, candidates, hints)
     names = base_names + [e[2] for e in entries]
     specs = {e[2]: e[3] for e in entries}
@@ -103,7 +105,7 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
         if cand.name not in out or (score >= 0, abs(score)) > (out[cand.name][0] >= 0,
                                                                 abs(out[cand.name][0])):
             out[cand.name] = (score, beta * spec.scale, probe, shift)
-    return out, limits
+    return out, limits, q
 
 
 def _detection_limit(problem: Problem, c: np.ndarray, cc: float, spec: ParameterSpec,
