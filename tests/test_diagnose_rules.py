@@ -312,6 +312,14 @@ def test_verdicts_and_statuses_keep_their_strings():
     assert not r.waiting and r.status in SET_ASIDE
 
 
+def _significance():
+    """The tolerance of N samples in four recordings, noise estimates 1 % uncertain."""
+    from stickslip_jax.diagnose.significance import Significance
+
+    return Significance(np.full(4, N / 4), np.full(4, 1e-9), np.full(4, 0.01),
+                        np.zeros(4), 3.0)
+
+
 def _refitted(name, explained, *, delta=-1e3, material=True, predicts=True, adequate=False):
     r = CandidateResult(name, refitted=True, explained=explained, criterion_delta=delta,
                         material=material, predicts=predicts, adequate=adequate)
@@ -342,13 +350,14 @@ def test_a_partial_answer_is_kept_when_nothing_explains_and_only_then():
     def say(_):
         return None
 
+    sig = _significance()
     full, partly = _refitted("stribeck", 0.8, delta=-500.0), _refitted("creep", 0.6)
-    best = _accept([partly, full], Policy(), say)  # best ΔBIC first: creep
+    best = _accept([partly, full], Policy(), sig, say)  # best ΔBIC first: creep
     assert best is full and not best.partial
     partly, wrong = _refitted("creep", 0.6, delta=-900.0), _refitted("external_load", 0.3)
-    best = _accept([wrong, partly], Policy(), say)
+    best = _accept([wrong, partly], Policy(), sig, say)
     assert best is partly and best.partial and best.accepted
-    none = _accept([_refitted("creep", 0.3)], Policy(), say)
+    none = _accept([_refitted("creep", 0.3)], Policy(), sig, say)
     assert none is None
 
 
@@ -432,3 +441,23 @@ def test_the_projected_fit_is_the_joint_fit_with_the_baseline_linear():
     np.testing.assert_allclose(out.cost_end, joint_cost, rtol=1e-8)
     held, *_ = np.linalg.lstsq(a, y, rcond=None)
     assert out.cost_end < float(np.sum((a @ held - y) ** 2)) - 10.0  # not the held fit
+
+
+def test_a_rival_is_indistinguishable_only_within_the_tolerance_of_the_best():
+    # Tolerance τ = 0.08 over N samples: a rival whose refit costs more than τ·N above
+    # the best's is told apart, however close its ΔBIC is in share (a strong effect:
+    # both remove nearly all of a huge excess).
+    from stickslip_jax.diagnose.rules import indistinguishable
+
+    sig = _significance()
+    assert sig.tolerance > 0
+    tol = sig.tolerance * N
+    best = CandidateResult("sensor_delay", rss_after=N, criterion_delta=-3.68e6)
+    near = CandidateResult("rate_dependent_hysteresis", rss_after=N + 0.9 * tol,
+                           criterion_delta=-3.68e6 + 0.9 * tol)
+    far = CandidateResult("drive_bandwidth", rss_after=N + 5 * tol,
+                          criterion_delta=0.97 * -3.68e6)
+    assert indistinguishable(near, best, sig)
+    assert not indistinguishable(far, best, sig)  # 97 % of the best ΔBIC: told apart
+    near.criterion_delta = -5.0  # not accepted-grade: never a rival
+    assert not indistinguishable(near, best, sig)

@@ -50,7 +50,6 @@ class Policy:
                                           residual or a refit's drop must exceed
     ``excess_min``              0.01      excess (share of N) below which shares of it
                                           are undefined
-    ``indistinguishable``       0.9       share of the best ΔBIC that ties with it
     ``size_at_most``            5         entries sized per round
     ``wrong_sign_share``        0.2       share of the largest ``|S|`` that sizes a
                                           wrong-sign entry anyway
@@ -122,12 +121,6 @@ class Policy:
     noise to take shares of: an entry's share explained is then undefined (only ΔBIC
     and the tolerance speak) and the leader-alone rule does not apply. 1 % of
     the noise's own ``Σ(e/σ)²`` is well inside the noise estimate's uncertainty."""
-
-    indistinguishable: float = 0.9
-    """An accepted-grade rival (ΔBIC below :attr:`bic_min`) whose ΔBIC reaches this share
-    of the best one's is reported as indistinguishable from it: its evidence is within
-    10 % of the best's log Bayes factor. A reporting threshold, set by hand; it changes
-    no decision."""
 
     size_at_most: int = 5
     """Entries sized per round, the largest ``|S|`` first (admissible signs before wrong

@@ -20,6 +20,7 @@ import numpy as np
 
 from .policy import DEFAULT_POLICY, Policy
 from .results import CandidateResult, CandidateStatus
+from .significance import Significance
 
 
 def rank_value(r: CandidateResult) -> float:
@@ -52,6 +53,18 @@ def acceptable_partly(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bo
     (most of it) without reaching :attr:`~.Policy.explained_min`."""
     return (r.criterion_delta < policy.bic_min and r.material and r.predicts
             and bool(np.isfinite(r.explained)) and r.explained >= policy.partial_min)
+
+
+def indistinguishable(rival: CandidateResult, best: CandidateResult,
+                      significance: Significance,
+                      policy: Policy = DEFAULT_POLICY) -> bool:
+    """``rival``'s refit is accepted-grade (ΔBIC below :attr:`~.Policy.bic_min`) and
+    its cost exceeds ``best``'s by no more than the tolerance (not
+    :meth:`~.significance.Significance.material`): the data cannot tell the two fits
+    apart. (A share of the best ΔBIC, the former test, called an entry that left five
+    times the best's residual indistinguishable wherever the effect was strong.)"""
+    return (rival.criterion_delta < policy.bic_min
+            and not significance.material(rival.rss_after, best.rss_after))
 
 
 def leader_alone(ranked: list[CandidateResult], excess: float | None,

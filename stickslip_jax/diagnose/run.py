@@ -61,9 +61,10 @@ it decides by is a field of its :class:`~.policy.Policy`:
    :mod:`.significance`: the noise estimate's uncertainty and the simulator's numerical
    error) *and* it explains the residual: it removes at least
    :attr:`~.Policy.explained_min` of the residual's squared excess over the noise, or
-   leaves a residual within the tolerance. Entries
-   whose ΔBIC reaches :attr:`~.Policy.indistinguishable` of the best's are reported
-   as indistinguishable from it. Repeat from 3 until no entry is accepted.
+   leaves a residual within the tolerance. Accepted-grade rivals (ΔBIC below
+   :attr:`~.Policy.bic_min`) whose refit's cost exceeds the best's by no more than the
+   tolerance (the data cannot tell the two fits apart) are reported as
+   indistinguishable from it. Repeat from 3 until no entry is accepted.
 7. **Learned correction** (:func:`_learned_correction`, :mod:`.learned`): if a
    structured residual remains that no entry explains, fit the data-driven
    correction (:class:`~stickslip_jax.model.extensions.LearnedForce`, sparse
@@ -111,6 +112,7 @@ from .rules import (
     far_from_noise,
     first_refits,
     identification_bent,
+    indistinguishable,
     rank_value,
     reidentify_order,
     second_look,
@@ -285,11 +287,12 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
                           why_not_refitted(res, ranked, top, above_noise, policy))
 
 
-def _accept(refitted: list[CandidateResult], policy: Policy,
+def _accept(refitted: list[CandidateResult], policy: Policy, significance: Significance,
             say: Callable[[str], None]) -> CandidateResult | None:
     """Phase 6: the best refit (``refitted``: best ΔBIC first), that explains the
     residual if any does, marked accepted when :func:`~.rules.acceptable`; its rivals
-    within :attr:`~.Policy.indistinguishable` of it named. When none explains, the best
+    named that :func:`~.rules.indistinguishable` from it (``significance``: the
+    tolerance). When none explains, the best
     that :func:`~.rules.acceptable_partly` is accepted as a partial answer. None, with a
     note on the best, when nothing is accepted."""
     # The best-scoring entry that explains the residual; else the best overall.
@@ -298,10 +301,8 @@ def _accept(refitted: list[CandidateResult], policy: Policy,
         partly = next((r for r in refitted if acceptable_partly(r, policy)), None)
         if partly is not None:
             best, best.partial = partly, True
-    best.indistinguishable_from = [
-        r.name for r in refitted if r is not best
-        if r.criterion_delta < policy.bic_min
-        and r.criterion_delta <= policy.indistinguishable * best.criterion_delta]
+    best.indistinguishable_from = [r.name for r in refitted if r is not best
+                                   if indistinguishable(r, best, significance, policy)]
     if best.partial or acceptable(best, policy):
         best.accepted = True
         held = ""
@@ -502,7 +503,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             break
 
         # 6. Accept, or stop.
-        best = _accept(refitted, policy, say)
+        best = _accept(refitted, policy, significance, say)
         if best is None:
             break
         accepted.append(best)
