@@ -223,7 +223,7 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
             dbic = "" if c["criterion_delta"] is None else f"{c['criterion_delta']:.1f}"
             ex = ("" if c["explained_share_of_excess"] is None
                   else f"{100 * c['explained_share_of_excess']:.0f} %")
-            free = c.get("sizing_drop_baseline_free")
+            free = c["sizing_drop_baseline_free"]
             drops = f"{c['sizing_drop']:.3g}" + ("" if free is None else f", {free:.3g}")
             lines.append(f"| {c['name']} | {c['score_statistic']:.3g} | "
                          f"{drops} | {c['refitted']} | "

@@ -213,8 +213,8 @@ def _candidate_pool(candidates: Sequence[str] | None,
 def _score(problem: Problem, act: Actuator, base_names: list[str],
            pool: Sequence[Candidate], hints: dict):
     """Phase 3: the score test of every entry of ``pool`` at ``act``; the scores and
-    detection limits and the baseline's first-order span (:func:`~.scores.
-    score_candidates`) and a result per entry, best score first."""
+    detection limits and the baseline's first-order span
+    (:func:`~.scores.score_candidates`) and a result per entry, best score first."""
     scores, limits, basis = score_candidates(problem, act, base_names, pool, hints)
     results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe, _) in
                sorted(scores.items(), key=lambda kv: -kv[1][0])]
