@@ -7,13 +7,16 @@ import pytest
 
 from stickslip_jax.diagnose import budget as budget_mod
 from stickslip_jax.diagnose.budget import (
+    CLOSED_FORM_STAGE_FACTOR,
     DEFAULT_WORK_BUDGET,
-    DRIVE_STAGE_FACTOR,
+    REFERENCE_SUBSTEPS,
+    STAGE_STEP_WEIGHT,
     TANGENT_WEIGHT,
     UNIT,
     Budget,
     evaluation_work,
     fit_work,
+    plan_factor,
 )
 
 PROTOCOL_SAMPLES = 17 * 2500
@@ -23,14 +26,50 @@ BASELINE_COLUMNS = 42
 """The baseline's θ on it: Mp, Dp, Kp, Ds, rho0, 35 PI weights, z_ba per direction."""
 
 
-def test_work_is_counted_from_samples_columns_steps_and_drive_stage():
+def test_work_is_counted_from_samples_columns_steps_and_the_plan():
     assert evaluation_work(1000, 0) == 1000.0
     assert evaluation_work(1000, 10) == pytest.approx(1000 * (1 + 10 * TANGENT_WEIGHT))
-    assert evaluation_work(1000, 10, drive_stage=True) == pytest.approx(
-        DRIVE_STAGE_FACTOR * evaluation_work(1000, 10))
+    assert evaluation_work(1000, 10, 3.5) == pytest.approx(3.5 * evaluation_work(1000, 10))
     # A fit of s steps evaluates the start and then once per step.
     assert fit_work(1000, 3, 25) == 26 * evaluation_work(1000, 3)
     assert fit_work(1000, 3, 0) == evaluation_work(1000, 3)
+
+
+def test_the_plan_factor_counts_sub_steps_and_what_a_drive_stage_adds():
+    from stickslip_jax.model.extensions import LowPassInput, SlewLimitedInput
+    from stickslip_jax.model.stages import IdentityInput
+    from stickslip_jax.stepping import StepPlan
+
+    none, low_pass = IdentityInput(), LowPassInput(1e-6)
+    slew = SlewLimitedInput(1e6, 1e-6)
+    assert plan_factor(StepPlan(REFERENCE_SUBSTEPS), none) == 1.0
+    # Sub-steps cost in proportion: a mode 4x faster than the baseline's, 4x the work.
+    assert plan_factor(StepPlan(4 * REFERENCE_SUBSTEPS), none) == pytest.approx(4.0)
+    # A closed-form stage costs the same whatever its time constant...
+    assert plan_factor(StepPlan(REFERENCE_SUBSTEPS), low_pass) == CLOSED_FORM_STAGE_FACTOR
+    # ...a stage integrated apart by its own steps, per step (a fast slew limit: 40).
+    assert plan_factor(StepPlan(REFERENCE_SUBSTEPS, stage_substeps=5), slew) == \
+        pytest.approx(1 + 5 * STAGE_STEP_WEIGHT)
+    assert plan_factor(StepPlan(2 * REFERENCE_SUBSTEPS, stage_substeps=40), slew) == \
+        pytest.approx(2 * (1 + 40 * STAGE_STEP_WEIGHT))
+
+
+def test_the_reference_plan_is_the_default_profiles_on_the_protocol():
+    """The unit's reference sub-steps are what the default stepping plans for the default
+    profile at the paper's protocol; a slew limit with a sub-µs small-signal time
+    constant (a sizing's start seen on a random set) plans many stage steps."""
+    import equinox as eqx
+
+    import stickslip_jax as ss
+    from stickslip_jax.model.extensions import SlewLimitedInput
+    from stickslip_jax.synthetic import paper_protocol
+
+    dt = paper_protocol()[0].recording().dt
+    act = ss.lu2015_slc1720()
+    assert ss.plan_steps(act, dt).substeps == REFERENCE_SUBSTEPS
+    fast = eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(1e6, 0.1e-6))
+    plan = ss.plan_steps(fast, dt)
+    assert plan_factor(plan, fast.input_stage) > 10.0
 
 
 def test_the_default_is_about_what_540_s_allowed_on_the_protocol():
@@ -39,7 +78,7 @@ def test_the_default_is_about_what_540_s_allowed_on_the_protocol():
     one = evaluation_work(PROTOCOL_SAMPLES, BASELINE_COLUMNS)
     assert 400 <= DEFAULT_WORK_BUDGET / one <= 550
     # A 25-step refit of the baseline with a 1-parameter entry: ~4 % of the default, so
-    # about 20 such refits fit in it; with a drive stage about 2.5x fewer.
+    # about 20 such refits fit in it; fewer at a finer plan (plan_factor).
     refit = fit_work(PROTOCOL_SAMPLES, BASELINE_COLUMNS + 1, 25)
     assert 15 <= DEFAULT_WORK_BUDGET / refit <= 25
 
@@ -89,9 +128,10 @@ def _scripted_run(budget: Budget) -> list[str]:
                                      ("drive_bandwidth", True, 25), ("external_load", False, 25),
                                      ("structural_mode", False, 25), ("sensor_delay", False, 25),
                                      ("contact_damping", False, 25)]:
-        need = fit_work(n, k + 1, 25, drive)
+        factor = 1 + 5 * STAGE_STEP_WEIGHT if drive else 1.0  # a 1 µs slew limit
+        need = fit_work(n, k + 1, 25, factor)
         if budget.allows(need, reserve):
-            budget.charge(fit_work(n, k + 1, steps_taken, drive))
+            budget.charge(fit_work(n, k + 1, steps_taken, factor))
             decisions.append(f"refit {name}")
             time.sleep(0)  # where the real run spends its seconds
         else:

@@ -11,20 +11,31 @@ machine, a slow one or a busy one (issue #27). Wall time is measured only for di
 (:meth:`Budget.progress`: the share spent and an ETA at the run's own pace).
 
 **Unit: the sample-evaluation.** The simulator advancing one recording by one sample
-once, carrying the residual's value. Every residual evaluation of a fit also carries
-its Jacobian's columns in forward mode; a column adds :data:`TANGENT_WEIGHT` of a
-value pass. A model with a drive (input) stage costs :data:`DRIVE_STAGE_FACTOR` times
-as much per sample. So one evaluation of ``samples`` samples with ``columns`` free
-parameters is ``samples · (1 + TANGENT_WEIGHT · columns) · (DRIVE_STAGE_FACTOR if
-drive else 1)`` sample-evaluations (:func:`evaluation_work`), where ``samples`` is the
-padded grid (recordings × the longest one's samples: the rows step together), and a
-Levenberg-Marquardt fit of ``s`` steps makes ``s + 1`` evaluations (the start, then
-one per step). Work done is charged from the steps the solver reports; work to come
-is estimated before it runs from counts alone: samples, free parameters, ``max_steps``
-(an upper bound: the refits the budget guards mostly stop there; a refit's two stages
-each at ``max_steps``, :meth:`~.problem.Problem.refit_estimate`), drive stage.
-These counts do not depend on the machine; they depend on the data only through the
-solver's step counts, which are the same wherever the arithmetic is.
+once, carrying the residual's value, at the reference plan: :data:`REFERENCE_SUBSTEPS`
+coarse sub-steps per sample and no drive (input) stage. Every residual evaluation of a
+fit also carries its Jacobian's columns in forward mode; a column adds
+:data:`TANGENT_WEIGHT` of a value pass. A model simulated at another plan costs its
+:func:`plan_factor` per sample: its coarse sub-steps over the reference's, times what
+its drive stage adds (a closed-form stage :data:`CLOSED_FORM_STAGE_FACTOR`, one
+integrated apart :data:`STAGE_STEP_WEIGHT` per stage step between the mechanics' stage
+times). So one evaluation of ``samples`` samples with ``columns`` free parameters is
+``samples · (1 + TANGENT_WEIGHT · columns) · plan_factor`` sample-evaluations
+(:func:`evaluation_work`), where ``samples`` is the padded grid (recordings × the
+longest one's samples: the rows step together), and a Levenberg-Marquardt fit of ``s``
+steps makes ``s + 1`` evaluations (the start, then one per step). Work done is charged
+from the steps the solver reports; work to come is estimated before it runs from counts
+alone: samples, free parameters, ``max_steps`` (an upper bound: the refits the budget
+guards mostly stop there; a refit's two stages each at ``max_steps``,
+:meth:`~.problem.Problem.refit_estimate`), the plan its start needs. These counts do not
+depend on the machine; they depend on the data only through the solver's step counts
+and the plans of the parameter values it reaches, which are the same wherever the
+arithmetic is.
+
+Counting the plan matters where a fit starts at a fast time scale. On the frozen
+split at 4858aa4 a drive refit (set_01) and a structural-mode refit (set_12) ran 25
+steps in about 1 370 s each, where the set's other refits took 40-110 s: nothing in a
+fit's cost but its sub-steps grows that much (same samples, same columns), and the
+flat count took them for ordinary work.
 
 **Default: 1e8 sample-evaluations** (:data:`DEFAULT_WORK_BUDGET`), what the former
 540 s wall-clock budget allowed on a quiet 2-core CPU on the paper's 17-recording
@@ -46,6 +57,10 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+from ..drive_path import has_closed_form
+from ..model.base import AbstractInputStage
+from ..stepping import StepPlan
+
 DEFAULT_WORK_BUDGET = 1.0e8
 """Default work budget of a diagnosis [sample-evaluations] (module docstring: what 540 s
 allowed on a quiet 2-core CPU on the paper's 17-recording protocol)."""
@@ -56,18 +71,22 @@ TANGENT_WEIGHT = 0.1
 cost is mostly per-operation overhead, not arithmetic: through a 17-recording residual
 one tangent took 0.42 s and 22 vmapped 1.15 s, 0.035 s (≈ 0.08 of the pass) per added
 column; rounded up."""
-DRIVE_STAGE_FACTOR = 2.5
-"""How much more a sample costs when the model has a drive (input) stage [-]: the
-hysteresis is then evaluated at every RK4 stage instead of once per sample interval,
-and the stage is integrated apart at its own step (:mod:`stickslip_jax.drive_path`).
-Measured (``benchmarks/bench_drive_stage.py``, the 17-recording protocol, a Jacobian
-of 4 columns against the same without a stage, at 4858aa4): 1.45x for a low-pass of
-20, 5 or 1 µs (closed form), 3.1x for a 1 µs slew-limited stage, 1.8x for a 60 kHz
-two-pole stage. Before the stage was integrated apart its poles set the mechanical sub-step,
-and a 1 µs amplifier cost 24x (80 sub-steps per sample against 9), which this factor
-undercounted. Other fast modes (a refitted baseline with a stiff contact, a high
-structural mode) still multiply the sub-steps uncounted; counting the plan's
-sub-steps would be the general fix."""
+REFERENCE_SUBSTEPS = 9
+"""Coarse sub-steps per sample of the plan the unit counts at [-]: the default stepping's
+on the default profile at the paper's protocol (``benchmarks/bench_drive_stage.py``,
+case "none")."""
+CLOSED_FORM_STAGE_FACTOR = 1.45
+"""How much more a sample costs with a drive stage that advances in closed form (a
+first-order low-pass) [-]: the hysteresis is then evaluated at every RK4 stage instead of
+once per sample interval (:mod:`stickslip_jax.drive_path`). Measured
+(``benchmarks/bench_drive_stage.py``, the 17-recording protocol, a Jacobian of 4
+columns against the same without a stage, at 4858aa4): 1.45x for a low-pass of 20, 5 or
+1 µs."""
+STAGE_STEP_WEIGHT = 0.43
+"""What one RK4 step of a drive stage integrated apart adds per mechanical sub-step,
+relative to the sub-step without a stage [-]: the same benchmark's 1.76x for a 60 kHz
+two-pole stage (2 stage steps per gap) and 3.06x for a 1 µs slew-limited stage (5), a
+line ``1 + 0.43·k`` through both (1.86x and 3.15x)."""
 REIDENTIFY_EVALUATIONS = 35
 """Work assumed for a re-identification's staged steps before they run, in evaluations
 of the whole data set at the refit's size [-]: they took 20-40 s on the paper's
@@ -75,18 +94,30 @@ protocol, at about 1.15 s per such evaluation. Charged afterwards from the steps
 identification reports."""
 
 
-def evaluation_work(samples: int, columns: int, drive_stage: bool = False) -> float:
+def plan_factor(plan: StepPlan, stage: AbstractInputStage) -> float:
+    """Cost of one sample simulated at ``plan`` with drive stage ``stage``, relative to
+    the unit's reference plan (module docstring) [-]."""
+    factor = plan.substeps / REFERENCE_SUBSTEPS
+    if stage.n_states == 0:
+        return factor
+    if has_closed_form(stage) or not plan.stage_apart:
+        return factor * CLOSED_FORM_STAGE_FACTOR
+    return factor * (1.0 + STAGE_STEP_WEIGHT * plan.stage_substeps)
+
+
+def evaluation_work(samples: int, columns: int, factor: float = 1.0) -> float:
     """One evaluation of a residual over ``samples`` padded samples and its Jacobian of
-    ``columns`` columns (0: the value only) [sample-evaluations]."""
-    factor = DRIVE_STAGE_FACTOR if drive_stage else 1.0
-    return float(samples) * (1.0 + TANGENT_WEIGHT * columns) * factor
+    ``columns`` columns (0: the value only), at a plan of :func:`plan_factor` ``factor``
+    [sample-evaluations]."""
+    return float(samples) * (1.0 + TANGENT_WEIGHT * columns) * float(factor)
 
 
-def fit_work(samples: int, columns: int, steps: int, drive_stage: bool = False) -> float:
+def fit_work(samples: int, columns: int, steps: int, factor: float = 1.0) -> float:
     """A Levenberg-Marquardt fit of ``steps`` steps: ``steps + 1`` evaluations (the start,
-    then one per step) [sample-evaluations]. With ``steps = max_steps``: the most it can
-    cost, known before it runs."""
-    return (int(steps) + 1) * evaluation_work(samples, columns, drive_stage)
+    then one per step), at a plan of :func:`plan_factor` ``factor``
+    [sample-evaluations]. With ``steps = max_steps``: the most it can cost, known before
+    it runs."""
+    return (int(steps) + 1) * evaluation_work(samples, columns, factor)
 
 
 class Budget:

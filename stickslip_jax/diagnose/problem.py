@@ -13,7 +13,7 @@ import numpy as np
 
 from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap
-from ..identify.residuals import TraceResiduals
+from ..identify.residuals import TraceResiduals, dataset_plan
 from ..identify.solve import solve_least_squares
 from ..identify.steps import (
     JOINT_GN_TOL,
@@ -22,7 +22,7 @@ from ..identify.steps import (
     without_absent_directions,
 )
 from ..model.actuator import Actuator
-from .budget import Budget, evaluation_work, fit_work
+from .budget import Budget, evaluation_work, fit_work, plan_factor
 from .significance import Significance
 
 
@@ -90,15 +90,21 @@ class Problem:
         """The tolerance of practical significance (:mod:`.significance`), set once the
         baseline's numerical error is known."""
 
+    def plan_factor(self, act: Actuator) -> float:
+        """Cost per sample of simulating ``act`` at the plan it needs on these data,
+        relative to the work unit's (:func:`~.budget.plan_factor`) [-]."""
+        return plan_factor(dataset_plan(act, self.data), act.input_stage)
+
     def evaluation_work(self, act: Actuator, columns: int) -> float:
         """One evaluation of the residual of ``act`` with a Jacobian of ``columns``
         columns [sample-evaluations]."""
-        return evaluation_work(self.samples, columns, has_drive_stage(act))
+        return evaluation_work(self.samples, columns, self.plan_factor(act))
 
     def fit_estimate(self, act: Actuator, columns: int, max_steps: int) -> float:
         """The most a fit of ``columns`` parameters from ``act`` can cost
-        [sample-evaluations], known before it runs."""
-        return fit_work(self.samples, columns, max_steps, has_drive_stage(act))
+        [sample-evaluations], known before it runs (at the plan of ``act``, which the
+        fit keeps)."""
+        return fit_work(self.samples, columns, max_steps, self.plan_factor(act))
 
     def refit_estimate(self, act: Actuator, columns: int, max_steps: int) -> float:
         """The most a refit (:meth:`refit`) of ``columns`` parameters from ``act`` can
@@ -113,9 +119,11 @@ class Problem:
 
     def evaluate(self, act: Actuator):
         """(whitened RSS, NRMSE per recording, simulated outputs) of ``act``."""
-        r, q = _whitened_and_output(self.residuals(ParameterMap.make(act, [])))
+        res = self.residuals(ParameterMap.make(act, []))
+        r, q = _whitened_and_output(res)
         r = np.asarray(r)
-        self.budget.charge(evaluation_work(self.samples, 0, has_drive_stage(act)))
+        self.budget.charge(evaluation_work(self.samples, 0,
+                                           plan_factor(res.inner.plan, act.input_stage)))
         return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
 
     def chi2_per_recording(self, nrmse) -> np.ndarray:
@@ -150,13 +158,13 @@ class Problem:
         (:class:`ProjectedResiduals`); the cost returned is then the projected one."""
         pmap = ParameterMap.make(act, list(names), specs)
         res = self.residuals(pmap)
+        factor = plan_factor(res.inner.plan, act.input_stage)  # the plan it keeps
         if project is not None:
             res = ProjectedResiduals(res, jnp.asarray(project))
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=label,
                                   gn_tol=JOINT_GN_TOL, initial_damping=initial_damping,
                                   echo=None)
-        self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations,
-                                    has_drive_stage(act)))
+        self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations, factor))
         fitted = pmap.actuator(jnp.asarray(out.theta))
         self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
                  f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")
@@ -188,16 +196,13 @@ HELD_FIRST = ("pi_weights",)
 """Quantities a refit (:meth:`Problem.refit`) holds in its first stage."""
 
 
-def has_drive_stage(act: Actuator) -> bool:
-    """``act`` has an input (drive) stage: its fits cost more (:mod:`.budget`)."""
-    return not act.input_stage.is_identity
-
-
-def identification_work(ident, data: Dataset, drive_stage: bool) -> float:
+def identification_work(ident, data: Dataset, factor: float) -> float:
     """The work of an identification [sample-evaluations]: its steps, from the steps
     each took on its recordings (padded to the longest of them) with its free
     parameters, then its final simulation of every recording, with the last step's
-    Jacobian when it computed an uncertainty."""
+    Jacobian when it computed an uncertainty; every step at the :func:`~.budget.
+    plan_factor` ``factor`` of its start (each step plans its own sub-steps; the
+    start's is the count known before it runs)."""
     lengths = {r.name: len(r.time_s) for r in data.recordings}
     work, last = 0.0, 0
     for st in ident.steps:
@@ -206,6 +211,6 @@ def identification_work(ident, data: Dataset, drive_stage: bool) -> float:
         samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
                                            for n in st.recordings)
         last = int(np.size(st.result.theta))
-        work += fit_work(samples, last, st.result.iterations, drive_stage)
+        work += fit_work(samples, last, st.result.iterations, factor)
     columns = last if ident.uncertainty is not None else 0
-    return work + evaluation_work(int(data.mask.size), columns, drive_stage)
+    return work + evaluation_work(int(data.mask.size), columns, factor)

@@ -25,9 +25,9 @@ import numpy as np
 from ..identify.parameters import ParameterMap, ParameterSpec
 from ..identify.solve import value_and_jacobian
 from ..model.actuator import Actuator
-from .budget import evaluation_work
+from .budget import evaluation_work, plan_factor
 from .catalogue import Candidate, Probe
-from .problem import Problem, has_drive_stage
+from .problem import Problem
 
 
 def install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
@@ -65,9 +65,10 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
     names = base_names + [e[2] for e in entries]
     specs = {e[2]: e[3] for e in entries}
     pmap = ParameterMap.make(probe_act, names, specs)
-    r, jac = value_and_jacobian(problem.residuals(pmap), pmap.zeros())
+    res = problem.residuals(pmap)
+    r, jac = value_and_jacobian(res, pmap.zeros())
     problem.budget.charge(evaluation_work(problem.samples, jac.shape[1],
-                                          has_drive_stage(probe_act)))
+                                          plan_factor(res.inner.plan, probe_act.input_stage)))
     n_base = jac.shape[1] - len(entries)
     jb = jac[:, :n_base]
     norms = np.linalg.norm(jb, axis=0)
