@@ -31,11 +31,10 @@ depend on the machine; they depend on the data only through the solver's step co
 and the plans of the parameter values it reaches, which are the same wherever the
 arithmetic is.
 
-Counting the plan matters where a fit starts at a fast time scale. On the frozen
-split at 4858aa4 a drive refit (set_01) and a structural-mode refit (set_12) ran 25
-steps in about 1 370 s each, where the set's other refits took 40-110 s: nothing in a
-fit's cost but its sub-steps grows that much (same samples, same columns), and the
-flat count took them for ordinary work.
+Counting the plan matters where a fit starts at a fast time scale (a drive stage with
+a sub-µs time constant, a stiff contact, a high structural mode): with the same samples
+and columns, only the sub-steps can make one fit's steps tens of times dearer than
+another's, and a flat count takes such a fit for ordinary work.
 
 **Default: 1e8 sample-evaluations** (:data:`DEFAULT_WORK_BUDGET`), what the former
 540 s wall-clock budget allowed on a quiet 2-core CPU on the paper's 17-recording

@@ -22,6 +22,7 @@ from ..identify.steps import (
     without_absent_directions,
 )
 from ..model.actuator import Actuator
+from ..stepping import StepPlan
 from .budget import Budget, evaluation_work, fit_work, plan_factor
 from .significance import Significance
 
@@ -90,10 +91,12 @@ class Problem:
         """The tolerance of practical significance (:mod:`.significance`), set once the
         baseline's numerical error is known."""
 
-    def plan_factor(self, act: Actuator) -> float:
-        """Cost per sample of simulating ``act`` at the plan it needs on these data,
+    def plan_factor(self, act: Actuator, plan: StepPlan | None = None) -> float:
+        """Cost per sample of simulating ``act`` at ``plan`` (default: the plan it needs
+        on these data; pass a residual's own, ``res.inner.plan``, when there is one),
         relative to the work unit's (:func:`~.budget.plan_factor`) [-]."""
-        return plan_factor(dataset_plan(act, self.data), act.input_stage)
+        plan = dataset_plan(act, self.data) if plan is None else plan
+        return plan_factor(plan, act.input_stage)
 
     def evaluation_work(self, act: Actuator, columns: int) -> float:
         """One evaluation of the residual of ``act`` with a Jacobian of ``columns``
@@ -110,8 +113,9 @@ class Problem:
         """The most a refit (:meth:`refit`) of ``columns`` parameters from ``act`` can
         cost [sample-evaluations]: both its stages at ``max_steps``."""
         held = int(np.size(act.hysteresis.weights))
-        return (self.fit_estimate(act, max(columns - held, 1), max_steps)
-                + self.fit_estimate(act, columns, max_steps))
+        factor = self.plan_factor(act)  # one plan for both stages' estimates
+        return (fit_work(self.samples, max(columns - held, 1), max_steps, factor)
+                + fit_work(self.samples, columns, max_steps, factor))
 
     def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:
         return WhitenedResiduals(TraceResiduals.make(pmap, self.data, in_metres=True),
@@ -123,7 +127,7 @@ class Problem:
         r, q = _whitened_and_output(res)
         r = np.asarray(r)
         self.budget.charge(evaluation_work(self.samples, 0,
-                                           plan_factor(res.inner.plan, act.input_stage)))
+                                           self.plan_factor(act, res.inner.plan)))
         return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
 
     def chi2_per_recording(self, nrmse) -> np.ndarray:
@@ -158,7 +162,7 @@ class Problem:
         (:class:`ProjectedResiduals`); the cost returned is then the projected one."""
         pmap = ParameterMap.make(act, list(names), specs)
         res = self.residuals(pmap)
-        factor = plan_factor(res.inner.plan, act.input_stage)  # the plan it keeps
+        factor = self.plan_factor(act, res.inner.plan)  # the plan the fit keeps
         if project is not None:
             res = ProjectedResiduals(res, jnp.asarray(project))
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=label,
@@ -200,9 +204,9 @@ def identification_work(ident, data: Dataset, factor: float) -> float:
     """The work of an identification [sample-evaluations]: its steps, from the steps
     each took on its recordings (padded to the longest of them) with its free
     parameters, then its final simulation of every recording, with the last step's
-    Jacobian when it computed an uncertainty; every step at the :func:`~.budget.
-    plan_factor` ``factor`` of its start (each step plans its own sub-steps; the
-    start's is the count known before it runs)."""
+    Jacobian when it computed an uncertainty; every step at the
+    :func:`~.budget.plan_factor` ``factor`` of its start (each step plans its own
+    sub-steps; the start's is the count known before it runs)."""
     lengths = {r.name: len(r.time_s) for r in data.recordings}
     work, last = 0.0, 0
     for st in ident.steps:

@@ -25,7 +25,7 @@ import numpy as np
 from ..identify.parameters import ParameterMap, ParameterSpec
 from ..identify.solve import value_and_jacobian
 from ..model.actuator import Actuator
-from .budget import evaluation_work, plan_factor
+from .budget import evaluation_work
 from .catalogue import Candidate, Probe
 from .problem import Problem
 
@@ -68,7 +68,7 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
     res = problem.residuals(pmap)
     r, jac = value_and_jacobian(res, pmap.zeros())
     problem.budget.charge(evaluation_work(problem.samples, jac.shape[1],
-                                          plan_factor(res.inner.plan, probe_act.input_stage)))
+                                          problem.plan_factor(probe_act, res.inner.plan)))
     n_base = jac.shape[1] - len(entries)
     jb = jac[:, :n_base]
     norms = np.linalg.norm(jb, axis=0)
