@@ -37,6 +37,7 @@ from stickslip_jax.diagnose.rules import (
     rank_value,
     reidentify_order,
     second_look,
+    size_before_polish,
     why_not_refitted,
 )
 from stickslip_jax.diagnose.sizing import worth_sizing_after_acceptance
@@ -318,6 +319,20 @@ def _significance():
 
     return Significance(np.full(4, N / 4), np.full(4, 1e-9), np.full(4, 0.01),
                         np.zeros(4), 3.0)
+
+
+def test_the_baseline_before_its_polish_is_sized_only_when_the_polish_moved_it():
+    """A polish that removed more than the tolerance (the noise estimate's uncertainty
+    and the numerical floor) leaves two baselines the data tell apart: both are sized;
+    one that removed less, or nothing (an identification that already minimised the
+    whitened residual), leaves one: sized once. A cost that is not finite: once."""
+    sig = _significance()
+    rss = 1.3 * N
+    moved = rss + 2 * sig.tolerance * N
+    assert size_before_polish(moved, rss, sig)
+    assert not size_before_polish(rss + 0.5 * sig.tolerance * N, rss, sig)
+    assert not size_before_polish(rss, rss, sig)
+    assert not size_before_polish(float("nan"), rss, sig)
 
 
 def _refitted(name, explained, *, delta=-1e3, material=True, predicts=True, adequate=False):

@@ -152,6 +152,19 @@ def identification_bent(rss_identified: float, rss_polished: float,
                 and rss_identified >= policy.reidentify_polish_gain * rss_polished)
 
 
+def size_before_polish(rss_identified: float, rss_polished: float,
+                       significance: Significance) -> bool:
+    """Round one sizes each entry on the baseline before its polish too (:mod:`.sizing`):
+    the polish removed a material part of the identified baseline's cost
+    (:meth:`~.significance.Significance.material`: more than the noise estimate's
+    uncertainty and the numerical floor), so the two baselines differ to the data and
+    the polish may have bent one of them to mimic part of an effect. Otherwise they are
+    one baseline to the data (as after an identification whose joint step already
+    minimised the whitened residual) and a second sizing would only repeat the first
+    from a cruder start. False when either cost is not finite."""
+    return significance.material(rss_identified, rss_polished)
+
+
 def reidentify_order(ranked: list[CandidateResult], top: int) -> list[CandidateResult]:
     """The entries re-identified when no refit explained the residual: the ``top`` of
     ``ranked`` (best first) that :func:`shows_promise`. The first-order ranking is the

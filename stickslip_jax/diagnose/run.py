@@ -26,14 +26,15 @@ it decides by is a field of its :class:`~.policy.Policy`:
    first-order sign around): each starts from the Gauss-Newton step of the score
    test, the entry at its strength and the baseline moved by its share of the step
    (the best of 1, 1/2, 1/4, 1/8 of it), and its own parameters are fitted with the
-   baseline held. After an acceptance, only entries whose ``|S|`` reaches
+   baseline held; in round one, when the polish removed a material part of the
+   identified baseline's cost (more than the tolerance), on the baseline before its
+   polish too, the better kept. After an acceptance, only entries whose ``|S|`` reaches
    :attr:`~.Policy.later_score_share` of the excess left are sized. Entries with seeds
-   (a rugged cost: the under-damped amplifier) are sized from their cheapest seed on
-   the polished baseline and, in round one, on the baseline before its polish, the
-   better kept. The sized entry is then fitted once more with the baseline free to
-   first order (the residual less its part in the span of ``J_b``: variable
-   projection), which predicts what its refit will remove where the baseline absorbed
-   part of the effect while it was identified.
+   (a rugged cost: the under-damped amplifier) start from their cheapest seed. The
+   sized entry is then fitted once more with the baseline free to first order (the
+   residual less its part in the span of ``J_b``: variable projection), which predicts
+   what its refit will remove where the baseline absorbed part of the effect while it
+   was identified.
 5. **Refit** (:func:`_refit_round`; the rules in :mod:`.rules`, the refits in
    :mod:`.refit`) the ``top`` by the largest of ``S`` and the sizing's drops, those
    below the leader only when within :attr:`~.Policy.competitive_share` of it and
@@ -116,6 +117,7 @@ from .rules import (
     rank_value,
     reidentify_order,
     second_look,
+    size_before_polish,
     why_not_refitted,
 )
 from .scores import score_candidates
@@ -480,7 +482,10 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         seeded = {c.name for c in pool if c.seeds(init)}
         chosen = chosen_for_sizing(results, seeded, size_at_most,
                                    rss - n_obs if accepted else None, say, policy)
-        sized = size_entries(problem, chosen, pool, scores, act, base.unpolished, rss,
+        unpolished = (base.unpolished if size_before_polish(base.rss_identified,
+                                                            base.rss, significance)
+                      else act)  # one baseline to the data: sized once
+        sized = size_entries(problem, chosen, pool, scores, act, unpolished, rss,
                              base.names, seeded, round_one=rnd == 0, policy=policy,
                              baseline_span=basis)
         ranked = sorted([r for r in results if r.name in sized],

@@ -6,8 +6,13 @@ score test, the entry at its strength and the baseline moved by its share of the
 (the best of 1, 1/2, 1/4, 1/8 of it; :func:`first_order_start`); an entry with seeds
 whose first-order sign is wrong starts from its cheapest seed (:func:`best_seed`). In
 round one it is sized on the baseline before its polish too, and the better sizing is
-kept (:func:`size_best`). What the sizing removed, ``size_drop``, ranks the refits
-with the score (:func:`~.rules.rank_value`).
+kept (:func:`size_best`), when the polish moved the baseline: :func:`~.run.diagnose`
+passes the polished baseline as ``unpolished`` (no second sizing) when the polish
+removed no material part of the identified baseline's cost (within the tolerance,
+:mod:`.significance`), as after an identification whose joint step already minimised
+the whitened residual; the two are then one baseline to the data, and a second
+sizing from it would differ only by its cruder start. What the sizing removed,
+``size_drop``, ranks the refits with the score (:func:`~.rules.rank_value`).
 
 The sized entry is then fitted once more with the baseline free *to first order*
 (:func:`size_with_baseline_free`): its own parameters fitted to the residual less its
@@ -84,26 +89,30 @@ def best_seed(problem: Problem, act: Actuator, base_names: list[str], cand: Cand
 
 def size_best(problem: Problem, name: str, starts):
     """Size an entry from each ``(tag, start, specs)`` of ``starts`` (its own parameters,
-    the baseline held): ``(cost, sized actuator, specs)`` of the lowest, or None."""
+    the baseline held): ``(cost, sized actuator, specs, program, θ)`` of the lowest, or
+    None; ``program`` (:class:`~.problem.FitProgram`) and ``θ`` its fit's coordinates,
+    for :func:`size_with_baseline_free`."""
     best = None
     for tag, start, specs in starts:
         label = f"size {name} ({tag})" if tag else f"size {name}"
-        sized, cost, _ = problem.fit(start, list(specs), specs, label=label,
-                                     max_steps=SIZE_STEPS)
+        program = problem.program(start, list(specs), specs)
+        sized, cost, out = problem.fit_from(program, program.pmap.zeros(), label=label,
+                                            max_steps=SIZE_STEPS)
         if best is None or cost < best[0]:
-            best = (cost, sized, specs)
+            best = (cost, sized, specs, program, out.theta)
     return best
 
 
-def size_with_baseline_free(problem: Problem, name: str, sized: Actuator, specs: dict,
+def size_with_baseline_free(problem: Problem, name: str, program, theta,
                             baseline_span: np.ndarray) -> float:
-    """The whitened cost after fitting the sized entry's own parameters (``specs``, from
-    ``sized``) to the residual less its part in ``baseline_span`` (orthonormal columns
-    spanning the baseline's Jacobian at the round's start): the cost with the baseline
-    free to first order (module docstring)."""
-    _, cost, _ = problem.fit(sized, list(specs), specs, max_steps=SIZE_STEPS,
-                             label=f"size {name} (baseline free to first order)",
-                             project=baseline_span)
+    """The whitened cost after fitting the sized entry's own parameters (``program``'s,
+    from ``theta``, where the held sizing ended) to the residual less its part in
+    ``baseline_span`` (orthonormal columns spanning the baseline's Jacobian at the
+    round's start): the cost with the baseline free to first order (module docstring).
+    It goes on in the held sizing's coordinates with its compiled program."""
+    _, cost, _ = problem.fit_from(program, theta, max_steps=SIZE_STEPS,
+                                  label=f"size {name} (baseline free to first order)",
+                                  project=baseline_span)
     return cost
 
 
@@ -185,12 +194,12 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
         best_sized = size_best(problem, cand.name, starts)
         if best_sized is None:
             continue
-        rss_size, start, specs = best_sized
+        rss_size, start, specs, program, theta = best_sized
         res.size_drop = rss - rss_size
         if baseline_span is not None:
             # The round starts at an optimum, where the residual is (nearly) orthogonal
             # to the span: its projected cost is ``rss``, the reference of both drops.
-            cost_free = size_with_baseline_free(problem, cand.name, start, specs,
+            cost_free = size_with_baseline_free(problem, cand.name, program, theta,
                                                 baseline_span)
             res.size_drop_free = max(rss - cost_free, res.size_drop)
         res.status = CandidateStatus.SIZED
