@@ -22,7 +22,8 @@ protocol), to check that the diagnosis is not tuned to the fixtures' generator.
 Columns: hidden effect, named effect (first accepted; ``unexplained`` when the verdict
 is the unexplained residual; ``-`` when nothing was named), verdict, mean NRMSE before
 and after, the noise floor (mean σ/peak-to-peak), the share of the NRMSE excess over the
-floor removed, wall time (compilation included).
+floor removed, wall time (compilation included; ``compile_s`` and
+``programs_compiled`` in the JSON: XLA's tracing and compiling within it).
 """
 
 import argparse
@@ -71,6 +72,28 @@ def variant_recordings(variant: str, *, reduced: bool, seed: int):
     return simulate_set(act, specs, noise_m=1e-9, seed=seed)
 
 
+class CompileClock:
+    """XLA's tracing, lowering and compiling, summed from JAX's monitoring events since
+    the process started: how much of a diagnosis's wall time is compiling (each fit
+    compiles its own Jacobian program) and how many programs it compiled."""
+
+    EVENTS = ("/jax/core/compile/backend_compile_duration",
+              "/jax/core/compile/jaxpr_trace_duration",
+              "/jax/core/compile/jaxpr_to_mlir_module_duration")
+
+    def __init__(self):
+        self.seconds, self.programs = 0.0, 0
+        jax.monitoring.register_event_duration_secs_listener(self._listen)
+
+    def _listen(self, event: str, duration: float, **_):
+        if event in self.EVENTS:
+            self.seconds += duration
+            self.programs += event == self.EVENTS[0]
+
+
+COMPILE_CLOCK = CompileClock()
+
+
 def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=None,
             **kw) -> dict:
     recs = ss.load_recordings([folder]) if recs is None else recs
@@ -79,6 +102,7 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
     else:
         init, steps = ss.load_params(TRUTH), ()
     t0 = time.perf_counter()
+    compile0 = (COMPILE_CLOCK.seconds, COMPILE_CLOCK.programs)
     d = diagnose(recs, init=init, fix={"Ms": 0.0247}, identify_steps=steps,
                  max_rounds=max_rounds, echo=lambda s: print("   ", s, flush=True), **kw)
     wall = time.perf_counter() - t0
@@ -97,6 +121,8 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
         "chi2_before": d.chi2_baseline, "chi2_after": d.chi2_final,
         "unexplained_depends_on": (d.unexplained or {}).get("depends_on"),
         "wall_s": wall, "timings_s": d.timings,
+        "compile_s": COMPILE_CLOCK.seconds - compile0[0],
+        "programs_compiled": COMPILE_CLOCK.programs - compile0[1],
         "tolerance_chi2": d.significance.get("tolerance_chi2"),
         "detection_limits": d.detection_limits,
     }

@@ -20,7 +20,8 @@ Per set (``--json``, appended as each set ends; sets already in the file are ski
 so an interrupted run resumes): the hidden effect, its form and whether the catalogue
 fits that form, strength, effect size (nm, over the noise, and the part the baseline
 cannot absorb to first order), noise, verdict, the entries accepted, NRMSE before and
-after, the share of the NRMSE excess over the noise floor removed, wall time. The
+after, the share of the NRMSE excess over the noise floor removed, wall time and the
+part of it XLA spent tracing and compiling (``compile_s``, ``programs_compiled``). The
 summary (printed and in the JSON): the confusion matrix (hidden effect × first entry
 named, or the verdict when none is), null false positives, the wrong-name rate, the
 right-name-first rate among the sets hiding a catalogue entry, the detection rate
@@ -164,6 +165,7 @@ def summary(rows: list[dict]) -> dict:
     unc = [r for r in rows if r["hidden"] == "uncatalogued"]
     named = [r for r in rows if r["named"]]
     walls = [r["wall_s"] for r in rows]
+    compiles = [r["compile_s"] for r in rows if "compile_s" in r]  # rows since 36a7ecd
     m = confusion(rows)
     return {
         "sets": len(rows),
@@ -193,6 +195,8 @@ def summary(rows: list[dict]) -> dict:
         "detection_vs_beyond_to_noise": detection_bins(rows, "beyond_to_noise"),
         "wall_s": {"mean": float(np.mean(walls)), "median": float(np.median(walls)),
                    "max": float(np.max(walls))} if walls else None,
+        "compile_share": (float(np.median(np.array(compiles) / np.array(walls)))
+                          if compiles and len(compiles) == len(walls) else None),
         "confusion": m,
         "confusion_markdown": confusion_markdown(m),
     }
@@ -230,6 +234,9 @@ def print_summary(rows: list[dict], s: dict) -> None:
         w = s["wall_s"]
         print(f"- diagnose wall time per set: mean {w['mean']:.0f} s, median "
               f"{w['median']:.0f} s, max {w['max']:.0f} s")
+    if s.get("compile_share") is not None:
+        print(f"- XLA tracing and compiling, median share of a set's wall time: "
+              f"{100 * s['compile_share']:.0f} %")
 
 
 def _detection_panel(ax, rows: list[dict], bins: list[dict], size: str, label: str) -> None:
@@ -361,7 +368,8 @@ def main() -> None:
         rows.append(run_one(spec, args.reduced))
         r = rows[-1]
         print(json.dumps({k: r[k] for k in ("set", "hidden", "form", "effect_to_noise",
-                                            "verdict", "named", "wall_s", "simulate_s")},
+                                            "verdict", "named", "wall_s", "compile_s",
+                                            "programs_compiled", "simulate_s")},
                          default=str), flush=True)
         save(args.json, meta, rows)  # after every set: a later crash keeps the rows done
     if args.merge:
