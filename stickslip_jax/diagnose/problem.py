@@ -43,6 +43,12 @@ class WhitenedResiduals(eqx.Module):
         return (r * self.inv_sigma[:, None]).reshape(-1)
 
 
+def without_span(basis, x):
+    """``x`` (a vector, or columns) less its part in the span of ``basis`` (orthonormal
+    columns): ``x − B(Bᵀx)``; numpy or JAX arrays."""
+    return x - basis @ (basis.T @ x)
+
+
 class ProjectedResiduals(eqx.Module):
     """``θ ↦`` the whitened residual less its part in the span of ``basis`` (columns
     orthonormal, one row per residual sample): ``r − B(Bᵀr)`` [-]. With ``B`` spanning
@@ -54,8 +60,7 @@ class ProjectedResiduals(eqx.Module):
     basis: jax.Array
 
     def __call__(self, theta, args=None):
-        r = self.inner(theta, args)
-        return r - self.basis @ (self.basis.T @ r)
+        return without_span(self.basis, self.inner(theta, args))
 
 
 class FitProgram:
@@ -70,8 +75,7 @@ class FitProgram:
         self.residuals = problem.residuals(pmap)
         self.factor = problem.plan_factor(pmap.start, self.residuals.inner.plan)
         """Its :meth:`~Problem.plan_factor`, at the plan it keeps."""
-        residuals = self.residuals
-        self._jacobian = ColumnSplitJacobian(lambda theta, args: residuals(theta))
+        self._jacobian = ColumnSplitJacobian(self.residuals)
 
     def __call__(self, theta):
         return self._jacobian(jnp.asarray(theta, dtype=float))
@@ -202,9 +206,8 @@ class Problem:
         def jacobian(theta):
             r, jac = program(theta)
             r, jac = np.asarray(r), np.asarray(jac)
-            if basis is not None:  # (I − B Bᵀ) on both: ProjectedResiduals and its J
-                r = r - basis @ (basis.T @ r)
-                jac = jac - basis @ (basis.T @ jac)
+            if basis is not None:  # ProjectedResiduals and its Jacobian
+                r, jac = without_span(basis, r), without_span(basis, jac)
             return r, jac
 
         res = program.residuals if basis is None else ProjectedResiduals(

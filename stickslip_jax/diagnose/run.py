@@ -448,6 +448,11 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     held_out = (held_out_cost(base.residual, base.jacobian, regimes)
                 if base.jacobian is not None and base.residual is not None else None)
 
+    # Round one sizes on the baseline before its polish too only when the two differ to
+    # the data; else the polished one is passed, and each entry is sized once.
+    unpolished = (base.unpolished
+                  if size_before_polish(base.rss_identified, base.rss, significance)
+                  else base.act)
     accepted: list[CandidateResult] = []
     rounds: list[list[CandidateResult]] = []
     detection_limits: dict[str, dict] = {}
@@ -482,9 +487,6 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         seeded = {c.name for c in pool if c.seeds(init)}
         chosen = chosen_for_sizing(results, seeded, size_at_most,
                                    rss - n_obs if accepted else None, say, policy)
-        unpolished = (base.unpolished if size_before_polish(base.rss_identified,
-                                                            base.rss, significance)
-                      else act)  # one baseline to the data: sized once
         sized = size_entries(problem, chosen, pool, scores, act, unpolished, rss,
                              base.names, seeded, round_one=rnd == 0, policy=policy,
                              baseline_span=basis)

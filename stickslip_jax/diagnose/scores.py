@@ -27,7 +27,7 @@ from ..identify.solve import value_and_jacobian
 from ..model.actuator import Actuator
 from .budget import evaluation_work
 from .catalogue import Candidate, Probe
-from .problem import Problem
+from .problem import Problem, without_span
 
 
 def install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
@@ -79,7 +79,7 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
     sig = problem.significance
     for k, (cand, probe, _, spec) in enumerate(entries):
         c = jac[:, n_base + k]
-        c_perp = c - q @ (q.T @ c)
+        c_perp = without_span(q, c)
         cc = float(c_perp @ c_perp)
         if sig is not None and cc > 0:
             limit = _detection_limit(problem, c, cc, spec, probe)
