@@ -4,13 +4,15 @@ everything ends, for less counted work."""
 from pathlib import Path
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import stickslip_jax as ss
+from stickslip_jax.diagnose import problem as problem_module
 from stickslip_jax.diagnose.budget import Budget
 from stickslip_jax.diagnose.catalogue import candidate
-from stickslip_jax.diagnose.problem import Problem, baseline_free
+from stickslip_jax.diagnose.problem import Problem, baseline_free, recentred
 from stickslip_jax.identify.dataset import Dataset
 from stickslip_jax.identify.parameters import ParameterMap
 from stickslip_jax.noise import noise_sigma
@@ -77,3 +79,59 @@ def test_the_estimate_bounds_both_stages(case):
     assert problem.refit_estimate(attached, columns, 8) == pytest.approx(
         problem.fit_estimate(attached, columns - held, 8)
         + problem.fit_estimate(attached, columns, 8))
+
+
+def test_fits_run_the_shared_programs_with_the_whole_sets_jacobian(case, monkeypatch):
+    """On a CPU a fit's residual and Jacobian come from the per-recording programs that
+    every fit on the same actuator structure shares; they are the whole data set's,
+    whitened, as forward mode through the batched simulation (an accelerator's
+    program) gives them."""
+    recs, attached, entry_specs = case
+    problem = _problem(recs)
+    names = baseline_free(attached, problem.data, problem.fix) + list(entry_specs)
+    program = problem.program(attached, names, entry_specs)
+    theta = 0.01 * np.random.default_rng(0).standard_normal(program.pmap.size)
+    r, jac = program(theta)
+    monkeypatch.setattr(problem_module, "default_batching", lambda: "vmap")
+    r_ref, jac_ref = problem.program(attached, names, entry_specs)(theta)
+    monkeypatch.undo()
+    assert r.shape == r_ref.shape and jac.shape == jac_ref.shape
+    # The same model at the same plan; the chunked per-recording loop and the
+    # bucketed batch differ only by rounding at the located slips.
+    assert np.max(np.abs(r - r_ref)) < 1e-4 * np.max(np.abs(r_ref))
+    assert np.max(np.abs(jac - jac_ref)) < 1e-4 * np.max(np.abs(jac_ref))
+    # A fit of fewer quantities on the same structure runs the same programs; one
+    # that frees a quantity they do not cover (Ms, held by the problem) widens them
+    # for every later fit.
+    shared = problem.recording_programs(attached)
+    assert problem.program(attached, list(entry_specs), entry_specs)._programs is shared
+    wider = problem.program(attached, ["Ms"] + list(entry_specs), entry_specs)._programs
+    assert wider is not shared
+    assert problem.program(attached, names, entry_specs)._programs is wider
+
+
+def test_a_fits_last_jacobian_recentred_is_the_jacobian_around_its_optimum(case):
+    """The polish's last Jacobian serves the score test at its optimum: in the
+    coordinates around the actuator there it is that actuator's own Jacobian."""
+    recs, attached, entry_specs = case
+    problem = _problem(recs)
+    # rho1 (softplus: its θ unit is its start value) makes the centre matter.
+    attached = eqx.tree_at(lambda a: a.friction.rho1, attached, jnp.asarray(300.0))
+    names = ["Mp", "Dp", "rho1", "pi_weights"] + list(entry_specs)
+    program = problem.program(attached, names, entry_specs)
+    pmap = program.pmap
+    theta = 0.05 * np.random.default_rng(1).standard_normal(pmap.size)
+    theta[pmap.slices()["rho1"]] = 0.7
+    r, jac = program(theta)
+    moved = recentred(jac, pmap, theta, entry_specs)
+    there = pmap.actuator(theta, xp=np)
+    r_there, direct = problem.program(there, names, entry_specs)(np.zeros(pmap.size))
+    # (The same model to the simulator's rounding at the located slips: a new centre
+    # plans its own sub-steps.)
+    assert np.max(np.abs(r_there - r)) < 1e-6 * np.max(np.abs(r))
+    assert np.max(np.abs(moved - direct)) < 1e-4 * np.max(np.abs(direct))
+    # Not the same numbers without the change of coordinates (rho1's transform depends
+    # on the centre; the others' derivatives only on the value).
+    column = pmap.slices()["rho1"]
+    assert np.max(np.abs(jac[:, column] - direct[:, column])) > 0.1 * np.max(
+        np.abs(direct[:, column]))

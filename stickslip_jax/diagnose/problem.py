@@ -13,7 +13,8 @@ import numpy as np
 
 from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap
-from ..identify.residuals import TraceResiduals, dataset_plan
+from ..identify.residuals import TraceResiduals, dataset_plan, default_batching
+from ..identify.sensitivities import RecordingPrograms, perturbed_mask
 from ..identify.solve import ColumnSplitJacobian, solve_least_squares
 from ..identify.steps import (
     JOINT_GN_TOL,
@@ -64,30 +65,69 @@ class ProjectedResiduals(eqx.Module):
 
 
 class FitProgram:
-    """``θ ↦ (whitened residual, ∂/∂θ)`` of the quantities of ``pmap`` around its start:
-    one compiled program (:class:`~stickslip_jax.identify.solve.ColumnSplitJacobian`),
-    kept so that a later fit in the same coordinates reuses it instead of compiling its
-    own (XLA's tracing and compiling, one program per fit, is most of a diagnosis's wall
-    time: 565 of 770 s on a 17-recording set, 181 programs)."""
+    """``θ ↦ (whitened residual, ∂/∂θ)`` of the quantities of ``pmap`` around its start,
+    in numpy.
 
-    def __init__(self, problem: Problem, pmap: ParameterMap):
+    On a CPU, from the problem's shared programs (:meth:`Problem.recording_programs`):
+    the outputs of every recording and their derivatives along θ's leaf tangents, then
+    the residual's by the chain rule
+    (:meth:`~stickslip_jax.identify.residuals.TraceResiduals.jacobian_from_outputs`).
+    Nothing is compiled per fit there. XLA's tracing and compiling of one program per
+    fit over the whole data set (its arrays constants of the program, its length
+    buckets copies of the sample loop) was most of a diagnosis's wall time (565 of
+    770 s on a 17-recording set, 181 programs); the shared programs simulate one
+    recording with everything that differs between fits as an argument, so every fit
+    on one actuator structure and stepping plan runs the same two programs.
+
+    On an accelerator, which batches the recordings in one call, one program over the
+    whole set (:class:`~stickslip_jax.identify.solve.ColumnSplitJacobian`), as the
+    identification's steps do there."""
+
+    def __init__(self, problem: Problem, pmap: ParameterMap, specs: dict | None = None):
         self.pmap = pmap
         self.residuals = problem.residuals(pmap)
         self.factor = problem.plan_factor(pmap.start, self.residuals.inner.plan)
         """Its :meth:`~Problem.plan_factor`, at the plan it keeps."""
-        self._jacobian = ColumnSplitJacobian(self.residuals)
+        self._programs = self._batched = None
+        if default_batching() == "map":
+            self._programs = problem.recording_programs(pmap.start, pmap.names, specs)
+            self._row_weight = np.repeat(np.asarray(self.residuals.inv_sigma),
+                                         problem.data.voltages.shape[1])
+        else:
+            self._batched = ColumnSplitJacobian(self.residuals)
 
-    def __call__(self, theta):
-        return self._jacobian(jnp.asarray(theta, dtype=float))
+    def __call__(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        theta = np.asarray(theta, dtype=float)
+        if self._batched is not None:
+            r, jac = self._batched(jnp.asarray(theta))
+            return np.asarray(r), np.asarray(jac)
+        tangents = self.pmap.leaf_tangents(theta, self._programs.mask)
+        q, dq = self._programs.sensitivities(self.pmap.actuator(theta, xp=np), tangents,
+                                             self.residuals.inner.plan)
+        r, jac = self.residuals.inner.jacobian_from_outputs(q, dq)
+        return r * self._row_weight, jac * self._row_weight[:, None]
 
 
 @eqx.filter_jit
-def _whitened_and_output(res: WhitenedResiduals):
-    """Whitened residual and simulated outputs (B, T) [m] at ``res``'s actuator, from
-    one simulation; compiled once per actuator structure (a candidate sized at several
-    strengths compiles once)."""
-    q = res.inner.simulate(jnp.zeros(0))
-    return res.whiten(res.inner.from_output(q)), q
+def _simulated(res: WhitenedResiduals):
+    """Simulated outputs (B, T) [m] at ``res``'s actuator, every recording in one
+    batched program (accelerators)."""
+    return res.inner.simulate(jnp.zeros(0))
+
+
+def recentred(jacobian: np.ndarray, pmap: ParameterMap, theta,
+              specs: dict | None = None) -> np.ndarray:
+    """A Jacobian ``∂r/∂θ`` of ``pmap``'s quantities at ``theta``, in the coordinates of
+    the same quantities around the actuator there (``θ = 0`` at it, what
+    :meth:`Problem.program` of that actuator uses): ``J·V(θ)⁻¹·V₀`` with ``V`` the
+    derivatives of the physical values in either coordinates
+    (:meth:`~stickslip_jax.identify.parameters.ParameterMap.value_jacobian`), so a
+    fit's last Jacobian serves at its optimum without simulating again."""
+    theta = np.asarray(theta, dtype=float)
+    here = ParameterMap.make(pmap.actuator(theta, xp=np), pmap.names, specs)
+    change = np.linalg.solve(pmap.value_jacobian(theta),
+                             here.value_jacobian(np.zeros(here.size)))
+    return np.asarray(jacobian) @ change
 
 
 def baseline_free(act: Actuator, data: Dataset, fix: dict) -> list[str]:
@@ -110,6 +150,7 @@ class Problem:
         self.n_obs = int(data.mask.sum())
         self.samples = int(data.mask.size)  # the padded grid the simulator steps
         self.counts = np.asarray(data.mask.sum(axis=1), dtype=float)
+        self._programs: dict = {}
         self.significance: Significance | None = None
         """The tolerance of practical significance (:mod:`.significance`), set once the
         baseline's numerical error is known."""
@@ -140,6 +181,29 @@ class Problem:
         return (fit_work(self.samples, max(columns - held, 1), max_steps, factor)
                 + fit_work(self.samples, columns, max_steps, factor))
 
+    def recording_programs(self, act: Actuator, names: Sequence[str] = (),
+                           specs: dict | None = None) -> RecordingPrograms:
+        """The shared programs (:class:`~stickslip_jax.identify.sensitivities.
+        RecordingPrograms`) of the data for actuators of the structure of ``act``, their
+        tangents covering the baseline's free quantities (:func:`baseline_free`) and
+        ``names`` (``specs`` for those not built in), kept for every later fit on that
+        structure. A name not covered yet widens them (one more compile; every fit of a
+        diagnosis on one structure otherwise shares them, whatever it frees)."""
+        key = jax.tree.structure(act)
+        held = self._programs.get(key)
+        specs = dict(specs or {})
+        if held is not None and set(names) <= held[0]:
+            return held[2]
+        known = {} if held is None else held[1]
+        known.update({n: specs[n] for n in names if n in specs})
+        union = set(baseline_free(act, self.data, self.fix)) | set(names)
+        if held is not None:
+            union |= held[0]
+        mask = perturbed_mask(act, sorted(union), known)
+        programs = RecordingPrograms(self.data, act, mask)
+        self._programs[key] = (union, known, programs)
+        return programs
+
     def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:
         return WhitenedResiduals(TraceResiduals.make(pmap, self.data, in_metres=True),
                                  jnp.asarray(1.0 / self.sigmas))
@@ -147,8 +211,11 @@ class Problem:
     def evaluate(self, act: Actuator):
         """(whitened RSS, NRMSE per recording, simulated outputs) of ``act``."""
         res = self.residuals(ParameterMap.make(act, []))
-        r, q = _whitened_and_output(res)
-        r = np.asarray(r)
+        if default_batching() == "map":
+            q = self.recording_programs(act).simulate(act, res.inner.plan)
+        else:
+            q = np.asarray(_simulated(res))
+        r = res.whiten(res.inner.from_output(q, xp=np))
         self.budget.charge(evaluation_work(self.samples, 0,
                                            self.plan_factor(act, res.inner.plan)))
         return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
@@ -160,7 +227,7 @@ class Problem:
     def cost_of_output(self, act: Actuator, q) -> float:
         """Whitened RSS of outputs ``q`` (B, T) [m] already simulated for ``act``."""
         res = self.residuals(ParameterMap.make(act, []))
-        r = np.asarray(res.whiten(res.inner.from_output(jnp.asarray(q))))
+        r = res.whiten(res.inner.from_output(np.asarray(q), xp=np))
         return float(r @ r)
 
     def nrmse_from_whitened(self, r) -> np.ndarray:
@@ -173,7 +240,7 @@ class Problem:
     def program(self, act: Actuator, names: Sequence[str], specs: dict) -> FitProgram:
         """The residual and Jacobian program of ``names`` around ``act``
         (:class:`FitProgram`), for :meth:`fit_from`."""
-        return FitProgram(self, ParameterMap.make(act, list(names), specs))
+        return FitProgram(self, ParameterMap.make(act, list(names), specs), specs)
 
     def fit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
             max_steps: int, initial_damping: float = 1.0,
@@ -218,7 +285,7 @@ class Problem:
                                   jacobian=jacobian)
         self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations,
                                     program.factor))
-        fitted = program.pmap.actuator(jnp.asarray(out.theta))
+        fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)
         self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
                  f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")
         return fitted, float(out.cost_end), out

@@ -101,7 +101,7 @@ from .holdout import held_out_cost
 from .learned import fit_learned
 from .locate import analyse_recording, mismatch_entries, residual_peaks
 from .policy import Policy
-from .problem import Problem, baseline_free, identification_work
+from .problem import Problem, baseline_free, identification_work, recentred
 from .refit import RefitSetup, RoundStart, refit, reidentify
 from .results import CandidateResult, CandidateStatus, Diagnosis, Verdict
 from .rules import (
@@ -149,6 +149,9 @@ class _Baseline:
     """Whitened residual at ``act`` (the polish's last point)."""
     jacobian: np.ndarray | None
     """Its Jacobian in the baseline's θ there (the leave-one-regime-out check)."""
+    jacobian_at_act: np.ndarray | None
+    """The same around ``act`` (θ = 0 there: :func:`~.problem.recentred`), the
+    baseline's columns of round one's score test."""
 
 
 def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
@@ -183,8 +186,11 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
                      f"optimum, and part of what the entries remove may be its own.")
     rss, nrmse0, q0 = problem.evaluate(act)
     rss_identified = float(polish.cost_start)  # the identification's (or init's) cost
+    at_act = (None if polish.jacobian is None else
+              recentred(polish.jacobian, ParameterMap.make(unpolished, base_names),
+                        polish.theta))
     return _Baseline(act, unpolished, rss, rss_identified, nrmse0, q0, base_names, n_base,
-                     polish.residual, polish.jacobian)
+                     polish.residual, polish.jacobian, at_act)
 
 
 def _locate(problem: Problem, q0: np.ndarray):
@@ -213,11 +219,13 @@ def _candidate_pool(candidates: Sequence[str] | None,
 
 
 def _score(problem: Problem, act: Actuator, base_names: list[str],
-           pool: Sequence[Candidate], hints: dict):
+           pool: Sequence[Candidate], hints: dict, base_jacobian: np.ndarray | None = None):
     """Phase 3: the score test of every entry of ``pool`` at ``act``; the scores and
     detection limits and the baseline's first-order span
-    (:func:`~.scores.score_candidates`) and a result per entry, best score first."""
-    scores, limits, basis = score_candidates(problem, act, base_names, pool, hints)
+    (:func:`~.scores.score_candidates`; ``base_jacobian``: the baseline's columns at
+    ``act`` when a fit already has them) and a result per entry, best score first."""
+    scores, limits, basis = score_candidates(problem, act, base_names, pool, hints,
+                                             base_jacobian)
     results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe, _) in
                sorted(scores.items(), key=lambda kv: -kv[1][0])]
     problem.say("[score] " + ", ".join(f"{r.name} {r.score:.3g}" for r in results))
@@ -469,7 +477,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
 
         # 3. Score.
         t0 = time.perf_counter()
-        scores, results, limits, basis = _score(problem, act, base.names, pool, hints)
+        scores, results, limits, basis = _score(
+            problem, act, base.names, pool, hints,
+            base.jacobian_at_act if rnd == 0 else None)
         timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
         if rnd == 0:
             detection_limits = limits

@@ -22,8 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..identify.parameters import ParameterMap, ParameterSpec
-from ..identify.solve import value_and_jacobian
+from ..identify.parameters import ParameterSpec
 from ..model.actuator import Actuator
 from .budget import evaluation_work
 from .catalogue import Candidate, Probe
@@ -52,7 +51,8 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
 
 
 def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
-                     candidates: Sequence[Candidate], hints: dict):
+                     candidates: Sequence[Candidate], hints: dict,
+                     base_jacobian: np.ndarray | None = None):
     """Score test of every probe (see the module docstring). Returns ``(scores,
     limits, basis)``: ``scores`` a dict ``name → (score, strength, probe, shift)`` with each
     candidate's best probe, the Gauss-Newton strength and the baseline θ shift that
@@ -60,15 +60,19 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
     ``strength`` in ``unit``, ``effect_nm``, ``probe``), empty until the problem has
     its :attr:`~.problem.Problem.significance`; ``basis`` an orthonormal basis (samples
     × baseline parameters) of the span of ``J_b``, what the baseline can mimic to first
-    order (:mod:`.sizing` sizes in its complement too)."""
+    order (:mod:`.sizing` sizes in its complement too).
+
+    ``base_jacobian``: ``J_b`` at ``act`` in the coordinates of ``base_names`` around it,
+    when a fit ended there with it (the baseline's polish,
+    :func:`~.problem.recentred`); then only the probes' columns are simulated."""
     probe_act, entries = install_probes(act, candidates, hints)
-    names = base_names + [e[2] for e in entries]
     specs = {e[2]: e[3] for e in entries}
-    pmap = ParameterMap.make(probe_act, names, specs)
-    res = problem.residuals(pmap)
-    r, jac = value_and_jacobian(res, pmap.zeros())
-    problem.budget.charge(evaluation_work(problem.samples, jac.shape[1],
-                                          problem.plan_factor(probe_act, res.inner.plan)))
+    names = list(specs) if base_jacobian is not None else base_names + list(specs)
+    program = problem.program(probe_act, names, specs)
+    r, jac = program(np.zeros(program.pmap.size))
+    problem.budget.charge(evaluation_work(problem.samples, jac.shape[1], program.factor))
+    if base_jacobian is not None:
+        jac = np.concatenate([np.asarray(base_jacobian), jac], axis=1)
     n_base = jac.shape[1] - len(entries)
     jb = jac[:, :n_base]
     norms = np.linalg.norm(jb, axis=0)
