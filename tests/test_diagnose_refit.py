@@ -104,10 +104,10 @@ def test_fits_run_the_shared_programs_with_the_whole_sets_jacobian(case, monkeyp
     # that frees a quantity they do not cover (Ms, held by the problem) widens them
     # for every later fit.
     shared = problem.recording_programs(attached)
-    assert problem.program(attached, list(entry_specs), entry_specs)._programs is shared
-    wider = problem.program(attached, ["Ms"] + list(entry_specs), entry_specs)._programs
+    assert problem.program(attached, list(entry_specs), entry_specs).programs is shared
+    wider = problem.program(attached, ["Ms"] + list(entry_specs), entry_specs).programs
     assert wider is not shared
-    assert problem.program(attached, names, entry_specs)._programs is wider
+    assert problem.program(attached, names, entry_specs).programs is wider
 
 
 def test_a_fits_last_jacobian_recentred_is_the_jacobian_around_its_optimum(case):

@@ -14,7 +14,7 @@ import numpy as np
 from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap
 from ..identify.residuals import TraceResiduals, dataset_plan, default_batching
-from ..identify.sensitivities import RecordingPrograms, perturbed_mask
+from ..identify.sensitivities import RecordingPrograms, StepJacobian, perturbed_mask
 from ..identify.solve import ColumnSplitJacobian, solve_least_squares
 from ..identify.steps import (
     JOINT_GN_TOL,
@@ -68,10 +68,9 @@ class FitProgram:
     """``θ ↦ (whitened residual, ∂/∂θ)`` of the quantities of ``pmap`` around its start,
     in numpy.
 
-    On a CPU, from the problem's shared programs (:meth:`Problem.recording_programs`):
-    the outputs of every recording and their derivatives along θ's leaf tangents, then
-    the residual's by the chain rule
-    (:meth:`~stickslip_jax.identify.residuals.TraceResiduals.jacobian_from_outputs`).
+    On a CPU, from the problem's shared programs (:meth:`Problem.recording_programs`),
+    as an identification step evaluates its residual
+    (:class:`~stickslip_jax.identify.sensitivities.StepJacobian`), then whitened.
     Nothing is compiled per fit there. XLA's tracing and compiling of one program per
     fit over the whole data set (its arrays constants of the program, its length
     buckets copies of the sample loop) was most of a diagnosis's wall time (565 of
@@ -88,24 +87,24 @@ class FitProgram:
         self.residuals = problem.residuals(pmap)
         self.factor = problem.plan_factor(pmap.start, self.residuals.inner.plan)
         """Its :meth:`~Problem.plan_factor`, at the plan it keeps."""
-        self._programs = self._batched = None
+        self.programs: RecordingPrograms | None = None
+        """The shared programs it runs (None on an accelerator)."""
+        self._shared = self._batched = None
         if default_batching() == "map":
-            self._programs = problem.recording_programs(pmap.start, pmap.names, specs)
-            self._row_weight = np.repeat(np.asarray(self.residuals.inv_sigma),
-                                         problem.data.voltages.shape[1])
+            self.programs = problem.recording_programs(pmap.start, pmap.names, specs)
+            self._shared = StepJacobian(self.residuals.inner, self.programs,
+                                        range(len(problem.data)))
         else:
             self._batched = ColumnSplitJacobian(self.residuals)
 
     def __call__(self, theta) -> tuple[np.ndarray, np.ndarray]:
-        theta = np.asarray(theta, dtype=float)
         if self._batched is not None:
-            r, jac = self._batched(jnp.asarray(theta))
+            r, jac = self._batched(jnp.asarray(theta, dtype=float))
             return np.asarray(r), np.asarray(jac)
-        tangents = self.pmap.leaf_tangents(theta, self._programs.mask)
-        q, dq = self._programs.sensitivities(self.pmap.actuator(theta, xp=np), tangents,
-                                             self.residuals.inner.plan)
-        r, jac = self.residuals.inner.jacobian_from_outputs(q, dq)
-        return r * self._row_weight, jac * self._row_weight[:, None]
+        r, jac = self._shared(theta)  # in metres
+        weight = np.repeat(np.asarray(self.residuals.inv_sigma), r.size // len(
+            self.residuals.inv_sigma))
+        return r * weight, jac * weight[:, None]
 
 
 @eqx.filter_jit
@@ -190,18 +189,13 @@ class Problem:
         structure. A name not covered yet widens them (one more compile; every fit of a
         diagnosis on one structure otherwise shares them, whatever it frees)."""
         key = jax.tree.structure(act)
-        held = self._programs.get(key)
-        specs = dict(specs or {})
-        if held is not None and set(names) <= held[0]:
-            return held[2]
-        known = {} if held is None else held[1]
-        known.update({n: specs[n] for n in names if n in specs})
-        union = set(baseline_free(act, self.data, self.fix)) | set(names)
-        if held is not None:
-            union |= held[0]
-        mask = perturbed_mask(act, sorted(union), known)
-        programs = RecordingPrograms(self.data, act, mask)
-        self._programs[key] = (union, known, programs)
+        covered, known, programs = self._programs.get(key, (set(), {}, None))
+        if programs is not None and set(names) <= covered:
+            return programs
+        known.update({n: specs[n] for n in names if specs and n in specs})
+        covered = covered | set(baseline_free(act, self.data, self.fix)) | set(names)
+        programs = RecordingPrograms(self.data, act, perturbed_mask(act, sorted(covered), known))
+        self._programs[key] = (covered, known, programs)
         return programs
 
     def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:

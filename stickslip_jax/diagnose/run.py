@@ -175,9 +175,10 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
     unpolished = act
     # The identification's joint step already minimised this residual (the ML
     # whitened one): the polish starts near its optimum, with little damping.
-    act, rss, polish = problem.fit(act, base_names, {}, label="baseline polish",
-                                   max_steps=3 * max_steps,
-                                   initial_damping=1e-3 if identify_steps else 1.0)
+    program = problem.program(act, base_names, {})
+    act, rss, polish = problem.fit_from(program, program.pmap.zeros(),
+                                        label="baseline polish", max_steps=3 * max_steps,
+                                        initial_damping=1e-3 if identify_steps else 1.0)
     if not polish.converged:
         # Every later comparison is against this optimum: a baseline short of its own
         # optimum leaves residual that any entry with a baseline-like signature buys.
@@ -186,9 +187,8 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
                      f"optimum, and part of what the entries remove may be its own.")
     rss, nrmse0, q0 = problem.evaluate(act)
     rss_identified = float(polish.cost_start)  # the identification's (or init's) cost
-    at_act = (None if polish.jacobian is None else
-              recentred(polish.jacobian, ParameterMap.make(unpolished, base_names),
-                        polish.theta))
+    at_act = (None if polish.jacobian is None
+              else recentred(polish.jacobian, program.pmap, polish.theta))
     return _Baseline(act, unpolished, rss, rss_identified, nrmse0, q0, base_names, n_base,
                      polish.residual, polish.jacobian, at_act)
 
