@@ -181,3 +181,27 @@ def test_every_independent_variant_changes_the_trace(saw):
         assert diff > 2e-9, (name, diff)
     with pytest.raises(ValueError, match="unknown variant"):
         with_variant(base, "magic")
+
+
+def test_a_learned_feature_switched_off_adds_no_force_and_keeps_the_structure(saw):
+    """``LearnedForce.active`` switches features off as data: the sparse refit's
+    actuator has the full fit's structure (the same compiled programs), and a feature
+    switched off contributes nothing however large its coefficient."""
+    import jax
+
+    from stickslip_jax.model.extensions import LEARNED_FEATURES, LearnedForce
+
+    rec, u = saw
+    base = ss.lu2015_slc1720()
+    scales = (1e-5, 1e-3, 1e-3, 1e-4, 100.0, 1e-7)
+    n = len(LEARNED_FEATURES)
+    coef = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1e-3])  # the compression term alone
+    on = base.with_extension(LearnedForce(coef, scales))
+    off = base.with_extension(LearnedForce(coef, scales, active=np.r_[np.ones(n - 1), 0.0]))
+    assert jax.tree.structure(on) == jax.tree.structure(off)
+    plan = ss.plan_steps(on, rec.dt)
+    q0 = ss.simulate(base, u, dt=rec.dt, stepping=plan)
+    q_on = ss.simulate(on, u, dt=rec.dt, stepping=plan)
+    q_off = ss.simulate(off, u, dt=rec.dt, stepping=plan)
+    assert float(jnp.max(jnp.abs(q_on - q0))) > 1e-9  # the feature moves the slider
+    assert float(jnp.max(jnp.abs(q_off - q0))) < 1e-15

@@ -4,6 +4,8 @@ sparse regression with the baseline free."""
 
 from __future__ import annotations
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
 from ..identify.parameters import ParameterMap, ParameterSpec
@@ -24,40 +26,46 @@ def learned_scales(problem: Problem) -> tuple[float, ...]:
 
 def fit_learned(problem: Problem, act: Actuator, base_names, rss0: float,
                 max_steps: int, policy: Policy = DEFAULT_POLICY) -> dict:
-    """Sparse regression of a force correction (fit, drop the features with
-    ``|t| <`` :attr:`~.Policy.learned_t_min`, refit if any was dropped)."""
-    scales = learned_scales(problem)
-    keep = list(range(len(LEARNED_FEATURES)))
-    fitted, rss = act, rss0
-    for stage in ("full", "sparse"):
-        coef = np.zeros(len(LEARNED_FEATURES))
-        trial = act.with_extension(LearnedForce(coef, scales))
-
-        def get(a):
-            return a.extensions[-1].coef
-        spec = {"learned_coef": ParameterSpec(get, "linear", 0.01, "N")}
-        fitted, rss, out = problem.fit(trial, base_names + ["learned_coef"], spec,
-                                       label=f"learned {stage}", max_steps=max_steps)
-        if stage == "sparse":
-            break
-        # t-statistics of the coefficients from the whitened Jacobian at the optimum
-        # (σ = 1), which the solver holds.
-        jac = out.jacobian
-        cov = np.linalg.pinv(jac.T @ jac)
-        sl = ParameterMap.make(trial, base_names + ["learned_coef"], spec).slices()["learned_coef"]
-        c = np.asarray(fitted.extensions[-1].coef)
-        se = np.sqrt(np.maximum(np.diag(cov)[sl], 1e-300)) * 0.01
-        t = c / se
-        keep = [i for i in range(len(c)) if abs(t[i]) >= policy.learned_t_min]
-        if not keep:
-            return {"features": [], "rss": rss, "actuator": act, "t": t.tolist()}
-        if len(keep) == len(c):
-            break  # nothing dropped: the refit would repeat this fit exactly
-        # Refit with the others held at zero: a library with only the kept columns.
-        scales = tuple(s if i in keep else np.inf for i, s in enumerate(scales))
-    coef = np.asarray(fitted.extensions[-1].coef)
+    """Sparse regression of a force correction on ``act`` (whitened RSS ``rss0``): fit
+    every feature with the baseline free (:meth:`~.problem.Problem.refit`: the PI
+    weights held first), drop those with ``|t| <`` :attr:`~.Policy.learned_t_min`, and,
+    if any was dropped, refit from where the full fit ended with them switched off
+    (``LearnedForce.active``): the same compiled programs, and a start next to the
+    sparse optimum (the kept coefficients barely move when a feature with a small
+    ``|t|`` goes)."""
+    n = len(LEARNED_FEATURES)
+    names = list(base_names) + ["learned_coef"]
+    spec = {"learned_coef": ParameterSpec(_coef, "linear", COEF_SCALE_N, "N")}
+    trial = act.with_extension(LearnedForce(np.zeros(n), learned_scales(problem)))
+    fitted, rss, out = problem.refit(trial, names, spec, label="learned full",
+                                     max_steps=max_steps)
+    # t-statistics of the coefficients from the whitened Jacobian at the optimum
+    # (σ = 1), which the solver holds.
+    jac = out.jacobian
+    cov = np.linalg.pinv(jac.T @ jac)
+    sl = ParameterMap.make(fitted, names, spec).slices()["learned_coef"]
+    c = np.asarray(_coef(fitted))
+    t = c / (np.sqrt(np.maximum(np.diag(cov)[sl], 1e-300)) * COEF_SCALE_N)
+    keep = [i for i in range(n) if abs(t[i]) >= policy.learned_t_min]
+    if not keep:
+        return {"features": [], "rss": rss0, "actuator": act, "t": t.tolist()}
+    if len(keep) < n:
+        active = np.array([1.0 if i in keep else 0.0 for i in range(n)])
+        start = eqx.tree_at(lambda a: (a.extensions[-1].coef, a.extensions[-1].active),
+                            fitted, (jnp.asarray(c * active), jnp.asarray(active)))
+        fitted, rss, _ = problem.fit(start, names, spec, label="learned sparse",
+                                     max_steps=max_steps, initial_damping=1e-3)
+    coef = np.asarray(_coef(fitted))
     order = sorted(keep, key=lambda i: -abs(coef[i]))
     return {"features": [LEARNED_FEATURES[i] for i in order],
             "coefficients_N": {LEARNED_FEATURES[i]: float(coef[i]) for i in order},
-            "rss": rss, "actuator": fitted}
+            "rss": rss, "actuator": fitted, "t": t.tolist()}
 
+
+COEF_SCALE_N = 0.01
+"""The θ scale of the coefficients [N] (linear): a force of 10 mN on the slider."""
+
+
+def _coef(a: Actuator):
+    """The learned correction's coefficients [N] (the last extension of ``a``)."""
+    return a.extensions[-1].coef

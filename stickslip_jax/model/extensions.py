@@ -331,15 +331,19 @@ class LearnedForce(_ForceOnly):
     ẋ = v1 − v2 [m/s], ``tanh(ẋ/scale)`` (a smoothed Coulomb term), piezo voltage u
     [V], piezo compression x1 − Γ [m]. Coefficients ``coef`` [N]; fitted by sparse
     regression (fit, drop the small ones, refit), the universal-differential-equation
-    fallback of the diagnosis.
+    fallback of the diagnosis. ``active`` (1 or 0 per feature, default all 1) switches
+    features off: an array, not part of the static structure, so that the sparse refit
+    runs the compiled program of the full fit.
     """
 
     coef: Float[Array, " k"]
+    active: Float[Array, " k"]
     scales: tuple[float, ...] = eqx.field(static=True)
 
-    def __init__(self, coef, scales):
+    def __init__(self, coef, scales, active=None):
         self.coef = _f(coef)
         self.scales = tuple(float(s) for s in scales)
+        self.active = _f(jnp.ones(len(self.scales)) if active is None else active)
 
     def features(self, core: CoreState):
         """The scaled library at the current state, shape (k,)."""
@@ -349,7 +353,8 @@ class LearnedForce(_ForceOnly):
                           core.u / s[4], (core.x1 - core.stroke) / s[5]])
 
     def terms(self, state, core, drive):
-        return ExtensionTerms(force_slider=jnp.dot(self.coef, self.features(core)))
+        return ExtensionTerms(force_slider=jnp.dot(self.coef * self.active,
+                                                   self.features(core)))
 
 
 # ---- output maps --------------------------------------------------------------------
