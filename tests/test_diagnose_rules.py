@@ -476,3 +476,141 @@ def test_a_rival_is_indistinguishable_only_within_the_tolerance_of_the_best():
     assert not indistinguishable(far, best, sig)  # 97 % of the best ΔBIC: told apart
     near.criterion_delta = -5.0  # not accepted-grade: never a rival
     assert not indistinguishable(near, best, sig)
+
+
+def test_a_refits_reach_is_bounded_by_its_converged_sizings_only():
+    from stickslip_jax.diagnose.rules import refit_reach
+
+    r = CandidateResult("creep", score=900.0, size_drop=1000.0, size_drop_free=1600.0)
+    assert refit_reach(r) == np.inf  # the free sizing did not converge: no bound
+    r.size_free_converged = True
+    assert refit_reach(r) == 2 * 1600.0 - 1000.0  # as much again as the freedom bought
+    r.score = 5000.0
+    assert refit_reach(r) == 5000.0  # never below the first-order promise
+
+
+class _Bent(eqx.Module):
+    """``y − a·p − (j·b + c·(j·b)²)``: an entry ``p`` entering linearly beside a baseline
+    ``b`` that enters with a quadratic bend (``c``): the refit's drop then differs from
+    the projected sizing's, which takes the baseline to first order."""
+
+    a: jnp.ndarray
+    j: jnp.ndarray
+    y: jnp.ndarray
+    c: float
+    free: tuple  # which of (p, b) are fitted, the other held at ``at``
+    at: jnp.ndarray
+
+    def __call__(self, theta, args=None):
+        k = self.a.shape[1]
+        full = self.at.at[jnp.asarray(self.free)].set(theta)
+        p, b = full[:k], full[k:]
+        z = self.j @ b
+        return self.a @ p + z + self.c * z**2 - self.y
+
+
+@pytest.mark.parametrize("bend", [0.0, 0.5, 1.0])
+def test_the_reach_bounds_the_refits_drop_where_the_baseline_bends(bend):
+    # Generated cases: an entry the baseline partly mimics, baselines from linear to
+    # clearly bent. The sizing held, the sizing with the baseline free to first order
+    # and the joint refit, each to its optimum, from the baseline's own optimum.
+    rng = np.random.default_rng(11)
+    n, kb, ke = 300, 4, 2
+    j = rng.normal(size=(n, kb)) / np.sqrt(n)
+    a = (rng.normal(size=(n, ke)) + 0.6 * (j[:, :ke] * np.sqrt(n))) / np.sqrt(n)
+    truth_b = np.array([3.0, -2.0, 1.0, 0.5])
+    z = j @ truth_b
+    y = jnp.asarray(a @ np.array([2.0, -1.5]) + z + bend * z**2
+                    + 0.05 * rng.normal(size=n))
+    zeros = jnp.zeros(ke + kb)
+
+    def solve(free, at, start):
+        model = _Bent(jnp.asarray(a), jnp.asarray(j), y, bend, tuple(free), at)
+        out = solve_least_squares(model, jnp.asarray(start), max_steps=200, gn_tol=1e-8,
+                                  label="bent")
+        return at.at[jnp.asarray(free)].set(out.theta), float(out.cost_end), model
+
+    base_idx, entry_idx = list(range(ke, ke + kb)), list(range(ke))
+    at0, cost0, _ = solve(base_idx, zeros, np.zeros(kb))
+    _, cost_held, _ = solve(entry_idx, at0, np.zeros(ke))
+    _, cost_joint, _ = solve(entry_idx + base_idx, at0, np.asarray(at0))
+    # The baseline's Jacobian at its optimum, its span taken out of the entry's fit.
+    jb = np.asarray(jnp.asarray(j) * (1 + 2 * bend * (jnp.asarray(j) @ at0[ke:]))[:, None])
+    basis, _ = np.linalg.qr(jb)
+    model = _Bent(jnp.asarray(a), jnp.asarray(j), y, bend, tuple(entry_idx), at0)
+    free = solve_least_squares(ProjectedResiduals(model, jnp.asarray(basis)),
+                               jnp.zeros(ke), max_steps=200, gn_tol=1e-8, label="free")
+    from stickslip_jax.diagnose.rules import refit_reach
+
+    r = CandidateResult("creep", score=0.0, size_drop=cost0 - cost_held,
+                        size_drop_free=max(cost0 - float(free.cost_end), cost0 - cost_held),
+                        size_free_converged=bool(free.converged))
+    refit_drop = cost0 - cost_joint
+    assert r.size_drop < 0.9 * refit_drop  # the baseline absorbed part of the effect
+    assert refit_drop <= refit_reach(r)
+    if bend == 0.0:  # a linear baseline: the projected sizing is the refit
+        np.testing.assert_allclose(r.size_drop_free, refit_drop, rtol=1e-6)
+    else:  # a bent one: the refit removes more than the projected sizing
+        assert refit_drop > r.size_drop_free + 1e-3
+
+
+def test_the_fallback_spends_no_refit_on_an_entry_out_of_reach():
+    from stickslip_jax.diagnose.rules import acceptance_reach, refit_reach
+
+    sig = _significance()
+    tol = sig.tolerance * N
+    reach = acceptance_reach(EXCESS, tol)
+    assert reach == pytest.approx(min(0.5 * EXCESS, EXCESS - tol))
+    # Little excess left: reaching the tolerance needs less than half of it.
+    assert acceptance_reach(1.2 * tol, tol) == pytest.approx(0.2 * tol)
+    ranked = _ranked(("sensor_drift", 0.3 * BASE, 0.3 * BASE),
+                     ("creep", 0.1 * BASE, 0.2 * BASE),
+                     ("stribeck", 0.05 * BASE, 0.01 * BASE),
+                     ("external_load", 0.01 * BASE, 0.1 * BASE))
+    ranked[0].refitted = True
+    for r, free, converged in zip(ranked[1:], (0.24, 0.02, 0.11), (True, False, True),
+                                  strict=True):
+        r.size_drop_free, r.size_free_converged = free * BASE, converged
+    assert refit_reach(ranked[1]) < reach  # 0.28 of BASE: cannot reach half the excess
+    again = fallback_refits(ranked, reach)
+    # The unconverged free sizing bounds nothing: refitted; the others are out of reach.
+    assert [r.name for r in again] == ["stribeck"]
+    assert ranked[1].status is CandidateStatus.OUT_OF_REACH
+    assert ranked[3].status is CandidateStatus.OUT_OF_REACH
+    assert "any acceptance needs" in ranked[1].note
+    assert not ranked[1].waiting
+
+
+def test_an_entry_out_of_reach_is_refitted_when_it_could_rival_an_acceptance():
+    from stickslip_jax.diagnose.rules import rivals_in_reach
+
+    sig = _significance()
+    tol = sig.tolerance * N
+    best = _refitted("sensor_drift", 0.6)
+    best.rss_after = BASE - 0.6 * EXCESS
+    near = CandidateResult("creep", size_drop=0.5 * EXCESS, size_free_converged=True,
+                           size_drop_free=0.6 * EXCESS - 0.6 * tol)
+    far = CandidateResult("stribeck", size_drop=0.1 * EXCESS, size_free_converged=True,
+                          size_drop_free=0.1 * EXCESS)
+    for r in (near, far):
+        r.set_aside(CandidateStatus.OUT_OF_REACH, "out of reach")
+    # A reach within the tolerance of the accepted-grade drop: it could end
+    # indistinguishable from it, so it gets its refit; the far one does not.
+    assert rivals_in_reach([best, near, far], BASE, tol) == [near]
+    best.explained = 0.3  # nothing accepted-grade: no rival to look for
+    assert rivals_in_reach([best, near, far], BASE, tol) == []
+
+
+def test_an_unconverged_free_sizing_is_carried_on_before_it_bounds_a_refit():
+    from stickslip_jax.diagnose.rules import unbounded
+
+    ranked = _ranked(("creep", 0.1 * BASE, 0.2 * BASE), ("stribeck", 0.05 * BASE, 0.01 * BASE),
+                     ("external_load", 0.01 * BASE, 0.1 * BASE),
+                     ("drive_bandwidth", -0.001 * BASE, -0.9 * BASE))
+    ranked[0].size_drop_free, ranked[0].size_free_converged = 0.24 * BASE, True
+    ranked[1].size_drop_free = 0.02 * BASE  # stopped short of its optimum
+    ranked[3].size_drop_free = -0.5 * BASE  # no promise: never refitted, never carried on
+    # external_load: no free sizing at all (-inf): nothing to carry on.
+    assert [r.name for r in unbounded(ranked)] == ["stribeck"]
+    ranked[1].refitted = True
+    assert unbounded(ranked) == []

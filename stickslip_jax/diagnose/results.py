@@ -49,11 +49,14 @@ class CandidateStatus(enum.StrEnum):
     """Wrong first-order sign, and its sizing raised the cost: no refit is spent on it."""
     NOT_REFITTED = "not refitted"
     """Sized but not refitted: a higher-ranked refit explained the residual."""
+    OUT_OF_REACH = "out of reach"
+    """Sized but not refitted: its sizings bound what its refit could remove below what
+    any acceptance needs (:func:`~.rules.refit_reach`)."""
 
 
 SET_ASIDE = frozenset({CandidateStatus.NOT_SIZED, CandidateStatus.SKIPPED,
                        CandidateStatus.REFIT_FAILED, CandidateStatus.NO_PROMISE,
-                       CandidateStatus.NOT_REFITTED})
+                       CandidateStatus.NOT_REFITTED, CandidateStatus.OUT_OF_REACH})
 """The statuses of an entry given no further refit in its round."""
 
 
@@ -70,6 +73,8 @@ class CandidateResult:
     size_drop_free: float = -np.inf
     """What the sizing removes with the baseline free to first order (never below
     :attr:`size_drop`; ``-inf`` when not computed; :mod:`.sizing`)."""
+    size_free_converged: bool = False
+    """That sizing ended by its Gauss-Newton test (at its optimum)."""
     refitted: bool = False
     params: dict = field(default_factory=dict)
     rss_before: float = np.nan

@@ -7,7 +7,10 @@ first). In a round, the diagnosis applies them in this order (:mod:`.run`):
 
 1. :func:`first_refits`: the leader, and the competitive entries beside it (the leader
    alone when its sizing already removed nearly all of the excess);
-2. :func:`fallback_refits`, when no first refit explains the residual (:func:`any_explains`);
+2. :func:`fallback_refits`, when no first refit explains the residual (:func:`any_explains`),
+   of the entries whose :func:`refit_reach` reaches what an acceptance needs
+   (:func:`acceptance_reach`); and, when a refit would then be accepted, the entries
+   out of reach that could still end indistinguishable from it (:func:`rivals_in_reach`);
 3. :func:`second_look`, when the explaining refits all stay :func:`far_from_noise`;
 4. :func:`reidentify_order`, when none explains and the identification was
    :func:`identification_bent`;
@@ -112,16 +115,85 @@ def shows_promise(r: CandidateResult) -> bool:
     return rank_value(r) > 0
 
 
-def fallback_refits(ranked: list[CandidateResult]) -> list[CandidateResult]:
+def refit_reach(r: CandidateResult) -> float:
+    """What ``r``'s refit can remove at most, as its sizings bound it: the larger of
+    its score and ``2·D_free − D_held`` (``D_held``, ``D_free``: the drops of its sizing
+    with the baseline held and free to first order); ``inf`` when the free sizing did
+    not converge (it then bounds nothing).
+
+    A refit frees the baseline in full where the free sizing frees it to first order,
+    so it can remove more than ``D_free`` only through the baseline's response beyond
+    first order; the bound lets that buy as much again as the baseline's first-order
+    freedom bought (``D_free − D_held``). An entry the baseline cannot mimic
+    (``D_free ≈ D_held``) is bounded by its sizing, which its refit then repeats; one
+    the baseline absorbed is given room in proportion. An argument, not a theorem: on
+    the 31 sizing/refit pairs whose free sizing converged in the diagnosis logs kept
+    from the concealed, development and frozen-split sets, no refit removed more than
+    this bound (the closest equalled it: entries with ``D_free = D_held``), and in
+    generated cases with a bent baseline the refit removes more than ``D_free`` and
+    less than the bound (tests/test_diagnose_rules.py)."""
+    if not r.size_free_converged:
+        return np.inf
+    return max(r.score, 2.0 * r.size_drop_free - r.size_drop)
+
+
+def acceptance_reach(excess: float, tolerance_cost: float,
+                     policy: Policy = DEFAULT_POLICY) -> float:
+    """The least a refit must remove to be accepted when no refit explains the
+    residual: :attr:`~.Policy.partial_min` of ``excess`` (the (e/σ)² over the noise: a
+    partial answer), or what leaves the residual within the tolerance
+    (``tolerance_cost``: the tolerance times the samples, :mod:`.significance`),
+    whichever is less."""
+    return min(policy.partial_min * excess, excess - tolerance_cost)
+
+
+def out_of_reach_note(r: CandidateResult, reach: float) -> str:
+    """The note of an entry :func:`fallback_refits` sets aside as out of reach."""
+    return (f"not refitted: its sizings bound what a refit could remove by "
+            f"{refit_reach(r):.4g} (held {r.size_drop:.4g}, baseline free to first "
+            f"order {r.size_drop_free:.4g}), below the {reach:.4g} any acceptance "
+            f"needs, and no refit explained the residual")
+
+
+def fallback_refits(ranked: list[CandidateResult],
+                    reach: float = -np.inf) -> list[CandidateResult]:
     """The entries refitted when no first refit explained the residual: every sized
-    entry still :attr:`~.CandidateResult.waiting` that :func:`shows_promise`; the others
-    are set aside with a note saying why not (an entry with the wrong first-order
-    sign whose sizing raised the cost rarely ends a refit below the baseline)."""
+    entry still :attr:`~.CandidateResult.waiting` that :func:`shows_promise` and whose
+    :func:`refit_reach` reaches ``reach`` (:func:`acceptance_reach`: such a refit could
+    be accepted); the others are set aside with a note saying why not (an entry with
+    the wrong first-order sign whose sizing raised the cost rarely ends a refit below
+    the baseline; one out of reach could not be accepted)."""
     waiting = [r for r in ranked if r.waiting]
     for r in waiting:
         if not shows_promise(r):
             r.set_aside(CandidateStatus.NO_PROMISE, NO_PROMISE)
+        elif refit_reach(r) < reach:
+            r.set_aside(CandidateStatus.OUT_OF_REACH, out_of_reach_note(r, reach))
     return [r for r in waiting if r.waiting]
+
+
+def unbounded(ranked: list[CandidateResult]) -> list[CandidateResult]:
+    """The entries a fallback refit would take whose free sizing stopped short of its
+    optimum (:func:`refit_reach` is then unbounded): carried on first
+    (:func:`~.sizing.carry_on_free_sizing`)."""
+    return [r for r in ranked if r.waiting and shows_promise(r)
+            and not r.size_free_converged and np.isfinite(r.size_drop_free)]
+
+
+def rivals_in_reach(ranked: list[CandidateResult], rss: float, tolerance_cost: float,
+                    policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
+    """The entries set aside as out of reach whose refit could still end
+    :func:`indistinguishable` from an acceptance: their :func:`refit_reach` comes
+    within ``tolerance_cost`` of the smallest drop (from ``rss``, the round's start)
+    among the refits that would be accepted, whole or partly. Refitted so that the
+    report names every rival the data cannot tell from the entry it accepts."""
+    drops = [rss - r.rss_after for r in ranked if r.refitted
+             and (acceptable(r, policy) or acceptable_partly(r, policy))]
+    if not drops:
+        return []
+    bar = min(drops) - tolerance_cost
+    return [r for r in ranked if r.status is CandidateStatus.OUT_OF_REACH
+            and refit_reach(r) >= bar]
 
 
 def any_explains(ranked: list[CandidateResult], policy: Policy = DEFAULT_POLICY) -> bool:

@@ -41,11 +41,12 @@ it decides by is a field of its :class:`~.policy.Policy`:
    their sizing did not raise the cost (and, if none of them explains the residual,
    every other sized entry too: the first-order ranking misleads when the baseline
    absorbed a large effect; never one whose score and sizing both point the wrong
-   way) from the current optimum, freeing the entry's parameters and every baseline
-   parameter. When the refits that explain the residual all leave (e/σ)² above
-   :attr:`~.Policy.second_look_chi2`, a seeded entry sized but not refitted gets its
-   refit before one is named (an entry that mimics most of another effect). When the
-   baseline was identified here, its polish divided the identified cost by
+   way, nor one whose sizings bound its refit's drop below what any acceptance needs,
+   :func:`~.rules.refit_reach`) from the current optimum, freeing the entry's
+   parameters and every baseline parameter. When the refits that explain the residual
+   all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a seeded entry sized but
+   not refitted gets its refit before one is named (an entry that mimics most of
+   another effect). When the baseline was identified here, its polish divided the identified cost by
    :attr:`~.Policy.reidentify_polish_gain` or more, and no refit explains the
    residual, not even a fallback one, the ``top`` entries showing promise are
    re-identified: the identification steps before the joint one, from ``init`` with
@@ -107,6 +108,7 @@ from .results import CandidateResult, CandidateStatus, Diagnosis, Verdict
 from .rules import (
     acceptable,
     acceptable_partly,
+    acceptance_reach,
     any_explains,
     explains,
     fallback_refits,
@@ -116,13 +118,15 @@ from .rules import (
     indistinguishable,
     rank_value,
     reidentify_order,
+    rivals_in_reach,
     second_look,
     size_before_polish,
+    unbounded,
     why_not_refitted,
 )
 from .scores import score_candidates
 from .significance import Significance
-from .sizing import chosen_for_sizing, size_entries
+from .sizing import FreeSizing, carry_on_free_sizing, chosen_for_sizing, size_entries
 
 
 @dataclass(frozen=True)
@@ -251,12 +255,15 @@ def _sized_entry(res: CandidateResult, pool: Sequence[Candidate],
 
 
 def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult],
-                 pool: Sequence[Candidate], sized: dict, seeded: set[str], *, top: int,
+                 pool: Sequence[Candidate], sized: dict, seeded: set[str],
+                 free_sizings: dict[str, FreeSizing], *, top: int,
                  budgeted_first: bool, reidentification: tuple | None,
                  timings: dict[str, float]) -> None:
     """Phase 5: the round's refits, in the order of :mod:`.rules`, from ``at``;
     ``reidentification`` ``(rss_identified, init, fix, staged)`` when a
-    re-identification may follow (round one of an identified baseline), else None.
+    re-identification may follow (round one of an identified baseline), else None;
+    ``free_sizings`` the entries' sizings with the baseline free
+    (:class:`~.sizing.FreeSizing`).
     Every sized entry ends refitted or set aside with a note."""
     policy, n_obs = setup.policy, setup.problem.n_obs
     # The leader-alone rule needs an excess over the noise to take shares of.
@@ -266,8 +273,19 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
     if not any_explains(ranked, policy):
         # The first-order ranking misleads when the baseline absorbed much of a large
         # effect (a slew-limited drive ranked below a constant load that mimics part
-        # of it): the other sized entries get their refit too.
-        for res in fallback_refits(ranked):
+        # of it): the other sized entries get their refit too, those whose sizings
+        # leave room for an acceptance; then those that could end indistinguishable
+        # from one.
+        tolerance_cost = setup.problem.significance.tolerance * n_obs
+        reach = acceptance_reach(at.excess, tolerance_cost, policy)
+        if reach > 0:
+            # A free sizing that stopped short of its optimum bounds nothing: carry it
+            # on (a few parameters, the compiled program) so that it can.
+            for res in unbounded(ranked):
+                carry_on_free_sizing(setup.problem, res, free_sizings[res.name], at.rss)
+        for res in fallback_refits(ranked, reach):
+            refit(setup, at, res, *_sized_entry(res, pool, sized))
+        for res in rivals_in_reach(ranked, at.rss, tolerance_cost, policy):
             refit(setup, at, res, *_sized_entry(res, pool, sized))
     if any_explains(ranked, policy) and far_from_noise(ranked, n_obs, policy):
         # A refit explains most of the excess but leaves a residual far above the
@@ -497,9 +515,10 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         seeded = {c.name for c in pool if c.seeds(init)}
         chosen = chosen_for_sizing(results, seeded, size_at_most,
                                    rss - n_obs if accepted else None, say, policy)
+        free_sizings: dict[str, FreeSizing] = {}
         sized = size_entries(problem, chosen, pool, scores, act, unpolished, rss,
                              base.names, seeded, round_one=rnd == 0, policy=policy,
-                             baseline_span=basis)
+                             baseline_span=basis, free_sizings=free_sizings)
         ranked = sorted([r for r in results if r.name in sized],
                         key=lambda r: -rank_value(r))
         if rnd == 0:
@@ -508,7 +527,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         # 5. Refit, from the round's optimum.
         reserve = setup.learned_reserve(act) if fallback and not accepted else 0.0
         at = RoundStart(act, rss, nrmse_now, max(rss - n_obs, 1e-9), reserve, held_out)
-        _refit_round(setup, at, ranked, pool, sized, seeded, top=top,
+        _refit_round(setup, at, ranked, pool, sized, seeded, free_sizings, top=top,
                      budgeted_first=rnd > 0,
                      reidentification=((base.rss_identified, init, fix, staged)
                                        if rnd == 0 else None),

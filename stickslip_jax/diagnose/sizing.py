@@ -31,6 +31,7 @@ never got a refit.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import jax.numpy as jnp
 import numpy as np
@@ -39,12 +40,16 @@ from ..identify.parameters import ParameterMap
 from ..model.actuator import Actuator
 from .catalogue import Candidate, Probe
 from .policy import DEFAULT_POLICY, Policy
-from .problem import Problem
+from .problem import FitProgram, Problem
 from .results import CandidateResult, CandidateStatus
 
 SIZE_STEPS = 15
 """Levenberg-Marquardt steps of a sizing at most (a few parameters, the baseline
 held)."""
+CARRY_ON_STEPS = 2 * SIZE_STEPS
+"""Steps at most by which a free sizing that stopped short of its optimum is carried on
+before it bounds a fallback refit (:func:`carry_on_free_sizing`): a few parameters on
+the projected residual, a fraction of one refit step's work each."""
 
 
 def first_order_start(problem: Problem, act: Actuator, base_names: list[str],
@@ -103,17 +108,55 @@ def size_best(problem: Problem, name: str, starts):
     return best
 
 
-def size_with_baseline_free(problem: Problem, name: str, program, theta,
-                            baseline_span: np.ndarray) -> float:
-    """The whitened cost after fitting the sized entry's own parameters (``program``'s,
-    from ``theta``, where the held sizing ended) to the residual less its part in
-    ``baseline_span`` (orthonormal columns spanning the baseline's Jacobian at the
-    round's start): the cost with the baseline free to first order (module docstring).
-    It goes on in the held sizing's coordinates with its compiled program."""
-    _, cost, _ = problem.fit_from(program, theta, max_steps=SIZE_STEPS,
-                                  label=f"size {name} (baseline free to first order)",
-                                  project=baseline_span)
-    return cost
+@dataclass(frozen=True)
+class FreeSizing:
+    """An entry's sizing with the baseline free to first order
+    (:func:`size_with_baseline_free`), where it stopped: enough to carry it on."""
+
+    name: str
+    program: FitProgram
+    """The held sizing's compiled program (its coordinates)."""
+    theta: np.ndarray
+    """Where the fit stopped, in those coordinates."""
+    span: np.ndarray
+    """The orthonormal span of the baseline's Jacobian taken out of the residual."""
+    cost: float
+    """Its whitened cost there (projected)."""
+    converged: bool
+    """It ended by its Gauss-Newton test."""
+
+    def carried_on(self, problem: Problem, max_steps: int = CARRY_ON_STEPS) -> FreeSizing:
+        """The same fit carried on from where it stopped, at most ``max_steps`` more
+        steps (no compile: the same program)."""
+        return size_with_baseline_free(problem, self.name, self.program, self.theta,
+                                       self.span, max_steps=max_steps,
+                                       tag="baseline free to first order, carried on")
+
+
+def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, theta,
+                            baseline_span: np.ndarray, *, max_steps: int = SIZE_STEPS,
+                            tag: str = "baseline free to first order") -> FreeSizing:
+    """The sized entry's own parameters (``program``'s, from ``theta``, where the held
+    sizing ended) fitted to the residual less its part in ``baseline_span``
+    (orthonormal columns spanning the baseline's Jacobian at the round's start): its
+    cost is the cost with the baseline free to first order (module docstring). It goes
+    on in the held sizing's coordinates with its compiled program."""
+    _, cost, out = problem.fit_from(program, theta, max_steps=max_steps,
+                                    label=f"size {name} ({tag})", project=baseline_span)
+    return FreeSizing(name, program, np.asarray(out.theta), baseline_span, float(cost),
+                      bool(out.converged))
+
+
+def carry_on_free_sizing(problem: Problem, res: CandidateResult, free: FreeSizing,
+                         rss: float) -> FreeSizing:
+    """Carry ``res``'s free sizing ``free`` on (:meth:`FreeSizing.carried_on`) and
+    update its drop (from ``rss``, the round's start; never lower than before) and
+    whether it converged: a sizing that stopped short of its optimum bounds nothing
+    (:func:`~.rules.refit_reach`)."""
+    free = free.carried_on(problem)
+    res.size_drop_free = max(rss - free.cost, res.size_drop_free)
+    res.size_free_converged = free.converged
+    return free
 
 
 def worth_sizing_after_acceptance(chosen: list[CandidateResult], excess: float,
@@ -163,14 +206,17 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
                  unpolished: Actuator, rss: float, base_names: list[str],
                  seeded: set[str], *, round_one: bool,
                  policy: Policy = DEFAULT_POLICY,
-                 baseline_span: np.ndarray | None = None) -> dict[str, tuple[Actuator, dict]]:
+                 baseline_span: np.ndarray | None = None,
+                 free_sizings: dict[str, FreeSizing] | None = None,
+                 ) -> dict[str, tuple[Actuator, dict]]:
     """Size each entry of ``chosen`` whose |score| reaches :attr:`~.Policy.score_min`,
     from the round's optimum ``act`` (cost ``rss``) and, in round one, from
     ``unpolished`` too (the polish can bend the baseline to mimic part of an effect, a
     local optimum the joint refit may not leave); the better sizing is kept. Sets each
     sized entry's ``size_drop`` and status, and, given ``baseline_span`` (the
     orthonormal span of the baseline's Jacobian at ``act``), its ``size_drop_free``
-    (:func:`size_with_baseline_free`; never below ``size_drop``); returns ``name →
+    (:func:`size_with_baseline_free`; never below ``size_drop``), kept in
+    ``free_sizings`` (``name →`` :class:`FreeSizing`) when given; returns ``name →
     (sized actuator, specs)`` (``scores``: :func:`~.scores.score_candidates`'s)."""
     sized = {}
     for res in chosen:
@@ -199,9 +245,12 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
         if baseline_span is not None:
             # The round starts at an optimum, where the residual is (nearly) orthogonal
             # to the span: its projected cost is ``rss``, the reference of both drops.
-            cost_free = size_with_baseline_free(problem, cand.name, program, theta,
-                                                baseline_span)
-            res.size_drop_free = max(rss - cost_free, res.size_drop)
+            free = size_with_baseline_free(problem, cand.name, program, theta,
+                                           baseline_span)
+            res.size_drop_free = max(rss - free.cost, res.size_drop)
+            res.size_free_converged = free.converged
+            if free_sizings is not None:
+                free_sizings[res.name] = free
         res.status = CandidateStatus.SIZED
         sized[res.name] = (start, specs)
     return sized
