@@ -48,8 +48,9 @@ def diagnose_command(
                                      "correction when no entry explains the residual."),
     work_budget: float = typer.Option(
         1.0, "--work-budget", help=f"Work the diagnosis may do, as a multiple of the "
-        f"default ({DEFAULT_WORK_BUDGET:.0e} {UNIT}, counted solver work: about nine "
-        f"minutes on a 2-core CPU for 17 recordings): optional refits whose counted work "
+        f"default ({DEFAULT_WORK_BUDGET:.0e} {UNIT} of counted solver work; 17-recording "
+        f"sets that refit several entries spent a quarter to a half of it, 8-22 minutes "
+        f"on a busy 2-core CPU): optional refits whose counted work "
         f"would pass it are skipped, and the notes say which; 0: no limit. Counted, not "
         f"timed: machine speed and load never change the decisions."),
     time_budget: float | None = typer.Option(

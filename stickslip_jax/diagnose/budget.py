@@ -48,7 +48,11 @@ polish, scores and sizings, four refits, one with a drive stage, three
 re-identifications, the learned correction)
 comes to the same 450-500 evaluations. Compilation is not counted (it took part of
 those 540 s), so a run that spends the whole default may take somewhat longer than
-nine minutes on such a machine; it takes the same decisions on every machine.
+nine minutes on such a machine; it takes the same decisions on every machine. That
+calibration is history: on the 2-core CPU of the later benchmarks (the fits on the
+shared per-recording programs, a Jacobian of the baseline in about 5 s beside a second
+run) the frozen split's sets that refit several entries spent 26-45 % of the default in
+8-22 minutes, so the whole of it would take 30-50 minutes there.
 """
 
 from __future__ import annotations
