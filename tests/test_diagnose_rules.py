@@ -559,7 +559,8 @@ def test_the_fallback_spends_no_refit_on_an_entry_out_of_reach():
 
     sig = _significance()
     tol = sig.tolerance * N
-    reach = acceptance_reach(EXCESS, tol)
+    assert sig.tolerance_rss == pytest.approx(tol)
+    reach = acceptance_reach(EXCESS, sig.tolerance_rss)
     assert reach == pytest.approx(min(0.5 * EXCESS, EXCESS - tol))
     # Little excess left: reaching the tolerance needs less than half of it.
     assert acceptance_reach(1.2 * tol, tol) == pytest.approx(0.2 * tol)

@@ -137,14 +137,14 @@ def refit_reach(r: CandidateResult) -> float:
     return max(r.score, 2.0 * r.size_drop_free - r.size_drop)
 
 
-def acceptance_reach(excess: float, tolerance_cost: float,
+def acceptance_reach(excess: float, tolerance_rss: float,
                      policy: Policy = DEFAULT_POLICY) -> float:
     """The least a refit must remove to be accepted when no refit explains the
     residual: :attr:`~.Policy.partial_min` of ``excess`` (the (e/σ)² over the noise: a
     partial answer), or what leaves the residual within the tolerance
-    (``tolerance_cost``: the tolerance times the samples, :mod:`.significance`),
+    (``tolerance_rss``: :attr:`~.significance.Significance.tolerance_rss`),
     whichever is less."""
-    return min(policy.partial_min * excess, excess - tolerance_cost)
+    return min(policy.partial_min * excess, excess - tolerance_rss)
 
 
 def out_of_reach_note(r: CandidateResult, reach: float) -> str:
@@ -180,18 +180,18 @@ def unbounded(ranked: list[CandidateResult]) -> list[CandidateResult]:
             and not r.size_free_converged and np.isfinite(r.size_drop_free)]
 
 
-def rivals_in_reach(ranked: list[CandidateResult], rss: float, tolerance_cost: float,
+def rivals_in_reach(ranked: list[CandidateResult], rss: float, tolerance_rss: float,
                     policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
     """The entries set aside as out of reach whose refit could still end
     :func:`indistinguishable` from an acceptance: their :func:`refit_reach` comes
-    within ``tolerance_cost`` of the smallest drop (from ``rss``, the round's start)
+    within ``tolerance_rss`` of the smallest drop (from ``rss``, the round's start)
     among the refits that would be accepted, whole or partly. Refitted so that the
     report names every rival the data cannot tell from the entry it accepts."""
     drops = [rss - r.rss_after for r in ranked if r.refitted
              and (acceptable(r, policy) or acceptable_partly(r, policy))]
     if not drops:
         return []
-    bar = min(drops) - tolerance_cost
+    bar = min(drops) - tolerance_rss
     return [r for r in ranked if r.status is CandidateStatus.OUT_OF_REACH
             and refit_reach(r) >= bar]
 

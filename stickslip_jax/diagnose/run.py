@@ -46,9 +46,9 @@ it decides by is a field of its :class:`~.policy.Policy`:
    parameters and every baseline parameter. When the refits that explain the residual
    all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a seeded entry sized but
    not refitted gets its refit before one is named (an entry that mimics most of
-   another effect). When the baseline was identified here, its polish divided the identified cost by
-   :attr:`~.Policy.reidentify_polish_gain` or more, and no refit explains the
-   residual, not even a fallback one, the ``top`` entries showing promise are
+   another effect). When the baseline was identified here, its polish divided the
+   identified cost by :attr:`~.Policy.reidentify_polish_gain` or more, and no refit
+   explains the residual, not even a fallback one, the ``top`` entries showing promise are
    re-identified: the identification steps before the joint one, from ``init`` with
    the entry attached (at its refitted or sized values) and free in every step, then
    the refit. The identification can bend the paper's model to mimic a large effect
@@ -276,8 +276,8 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
         # of it): the other sized entries get their refit too, those whose sizings
         # leave room for an acceptance; then those that could end indistinguishable
         # from one.
-        tolerance_cost = setup.problem.significance.tolerance * n_obs
-        reach = acceptance_reach(at.excess, tolerance_cost, policy)
+        tolerance_rss = setup.problem.significance.tolerance_rss
+        reach = acceptance_reach(at.excess, tolerance_rss, policy)
         if reach > 0:
             # A free sizing that stopped short of its optimum bounds nothing: carry it
             # on (a few parameters, the compiled program) so that it can.
@@ -285,7 +285,7 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
                 carry_on_free_sizing(setup.problem, res, free_sizings[res.name], at.rss)
         for res in fallback_refits(ranked, reach):
             refit(setup, at, res, *_sized_entry(res, pool, sized))
-        for res in rivals_in_reach(ranked, at.rss, tolerance_cost, policy):
+        for res in rivals_in_reach(ranked, at.rss, tolerance_rss, policy):
             refit(setup, at, res, *_sized_entry(res, pool, sized))
     if any_explains(ranked, policy) and far_from_noise(ranked, n_obs, policy):
         # A refit explains most of the excess but leaves a residual far above the
@@ -454,7 +454,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     baseline_adequate = significance.adequate(
         base.rss, problem.chi2_per_recording(base.nrmse))
     say(f"[significance] tolerance: mean (e/σ)² within 1 + {significance.tolerance:.3g} "
-        f"({significance.nm(significance.tolerance * n_obs):.3g} nm RMS; noise estimate "
+        f"({significance.nm(significance.tolerance_rss):.3g} nm RMS; noise estimate "
         f"SE {significance.chi2_se:.3g}, numerical {significance.numerical_chi2:.2g}); "
         f"the baseline is {'within' if baseline_adequate else 'beyond'} it")
 

@@ -118,7 +118,7 @@ def _detection_limit(problem: Problem, c: np.ndarray, cc: float, spec: Parameter
     """The detection limit of one probe (module docstring): ``c`` its whitened
     Jacobian column, ``cc = |c⊥|²``."""
     sig = problem.significance
-    theta = float(np.sqrt(sig.tolerance * sig.n_obs / cc))
+    theta = float(np.sqrt(sig.tolerance_rss / cc))
     # The effect itself in metres: un-whiten the column (each recording's σ).
     rows = np.asarray(c).reshape(len(problem.sigmas), -1) * problem.sigmas[:, None]
     effect_m = theta * float(np.sqrt(np.sum(rows**2) / sig.n_obs))

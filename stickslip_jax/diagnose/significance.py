@@ -71,6 +71,12 @@ class Significance:
         noise."""
         return self.z * self.chi2_se + self.numerical_chi2
 
+    @property
+    def tolerance_rss(self) -> float:
+        """``τ·N``: the tolerance as a whitened RSS (what a refit must remove to be
+        material, what a residual may exceed ``N`` by and still be at the noise)."""
+        return self.tolerance * self.n_obs
+
     def recording_tolerances(self) -> np.ndarray:
         """Per recording, the same test at the Bonferroni level over the recordings."""
         n, s = self.counts, self.sigma_rel_se
@@ -105,7 +111,7 @@ class Significance:
     def record(self) -> dict:
         """For diagnosis.json."""
         return {"z": self.z, "tolerance_chi2": self.tolerance,
-                "tolerance_nm": self.nm(self.tolerance * self.n_obs),
+                "tolerance_nm": self.nm(self.tolerance_rss),
                 "noise_estimate_se_chi2": self.chi2_se,
                 "numerical_chi2": self.numerical_chi2,
                 "sigma_relative_se": [float(s) for s in self.sigma_rel_se],

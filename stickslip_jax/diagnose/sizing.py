@@ -148,7 +148,7 @@ def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, th
 
 
 def carry_on_free_sizing(problem: Problem, res: CandidateResult, free: FreeSizing,
-                         rss: float) -> FreeSizing:
+                         rss: float) -> None:
     """Carry ``res``'s free sizing ``free`` on (:meth:`FreeSizing.carried_on`) and
     update its drop (from ``rss``, the round's start; never lower than before) and
     whether it converged: a sizing that stopped short of its optimum bounds nothing
@@ -156,7 +156,6 @@ def carry_on_free_sizing(problem: Problem, res: CandidateResult, free: FreeSizin
     free = free.carried_on(problem)
     res.size_drop_free = max(rss - free.cost, res.size_drop_free)
     res.size_free_converged = free.converged
-    return free
 
 
 def worth_sizing_after_acceptance(chosen: list[CandidateResult], excess: float,
