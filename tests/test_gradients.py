@@ -125,42 +125,71 @@ def test_reverse_mode_gradient(setup):
     assert np.all(np.abs(g) > 1e-6 * np.abs(g).max())
 
 
+def _perturbed_q(setup, delta, voltage, adjoint):
+    base = ss.lu2015_slc1720()
+    a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
+    return ss.simulate(a, voltage, dt=DT, adjoint=adjoint, stepping=setup["plan"])
+
+
+def _loss(setup, target, delta, voltage, adjoint):
+    return jnp.mean((_perturbed_q(setup, delta, voltage, adjoint) - target) ** 2) / 1e-18
+
+
+def _batch_loss(setup, delta, adjoint):
+    base = ss.lu2015_slc1720()
+    a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
+    qs = ss.simulate_batch(a, jnp.stack([setup["u"], setup["u_scan"]]), dt=DT,
+                           adjoint=adjoint, stepping=setup["plan"])
+    return jnp.sum(qs ** 2) / 1e-12
+
+
+@pytest.fixture(scope="module")
+def forward_mode(setup):
+    """The reference derivatives, from plain forward mode (``CheckpointedScan()``, no
+    rule of ours): the loss's gradient over the parameters (from the setup's Jacobian),
+    over the voltage (a Jacobian over its 300 samples) and the batched loss's over the
+    parameters. Plain reverse mode is what the fallback below runs (compiling reverse
+    mode through the simulator's loops takes ~70 s a program with native loops)."""
+    target = np.asarray(setup["q_of"](jnp.full(len(NAMES), 0.01)))
+    zero, u, plain = setup["zero"], setup["u"], ss.CheckpointedScan()
+    # d/dx mean((q − target)²)/1e-18 = 2·(q − target)·∂q/∂x / n / 1e-18
+    r = np.asarray(_perturbed_q(setup, zero, u, plain)) - target
+    jac_u = np.asarray(jax.jacfwd(lambda v: _perturbed_q(setup, zero, v, plain))(u))
+    grad = {0: 2 * r @ setup["jac"] / r.size / 1e-18, 1: 2 * r @ jac_u / r.size / 1e-18}
+    grad[(0, 1)] = (grad[0], grad[1])
+    voltages = jnp.stack([u, setup["u_scan"]])
+
+    def qs(delta):
+        base = ss.lu2015_slc1720()
+        a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
+        return ss.simulate_batch(a, voltages, dt=DT, adjoint=plain, stepping=setup["plan"])
+
+    jac_b = np.asarray(jax.jacfwd(qs)(zero))  # (2, 300, 7)
+    batch = 2 * np.einsum("bt,btk->k", np.asarray(qs(zero)), jac_b) / 1e-12
+    return {"target": target, "grad": grad, "batch": batch}
+
+
 @pytest.mark.parametrize("max_directions", [64, 2])
-def test_forward_sensitivities_give_the_same_derivatives(setup, max_directions):
+def test_forward_sensitivities_give_the_same_derivatives(setup, forward_mode, max_directions):
     """ForwardSensitivities (the default adjoint) changes how a gradient is computed,
     not its value: the gradient over the parameters, over the voltage and over both,
-    jacfwd and the batched simulation all equal plain reverse mode's
-    (``CheckpointedScan()``; with max_directions=2 the seven perturbed parameters take
-    the fallback: plain JAX derivatives)."""
-    base, u, dt = ss.lu2015_slc1720(), setup["u"], DT
+    jacfwd and the batched simulation all equal plain forward mode's. With
+    max_directions=2 the seven perturbed parameters take the fallback, plain JAX
+    derivatives: reverse mode through the simulator, checked here against forward
+    mode. The gradient over the voltage alone (no parameter perturbed: the fallback
+    whatever the limit) is checked once."""
     adjoint = ss.ForwardSensitivities(max_directions=max_directions)
-    target = np.asarray(setup["q_of"](jnp.full(len(NAMES), 0.01)))
-
-    def q(delta, voltage, adj):
-        a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
-        return ss.simulate(a, voltage, dt=dt, adjoint=adj, stepping=setup["plan"])
-
-    def loss(delta, voltage, adj):
-        return jnp.mean((q(delta, voltage, adj) - target) ** 2) / 1e-18
-
-    zero = setup["zero"]
-    for argnums in (0, 1, (0, 1)):
-        ref = jax.grad(loss, argnums)(zero, u, ss.CheckpointedScan())
-        got = jax.grad(loss, argnums)(zero, u, adjoint)
+    target, zero, u = forward_mode["target"], setup["zero"], setup["u"]
+    for argnums in ((0, 1, (0, 1)) if max_directions >= len(NAMES) else (0, (0, 1))):
+        ref = forward_mode["grad"][argnums]
+        got = jax.grad(lambda d, v: _loss(setup, target, d, v, adjoint), argnums)(zero, u)
         for r, g in zip(jax.tree.leaves(ref), jax.tree.leaves(got), strict=True):
             np.testing.assert_allclose(g, r, rtol=1e-9, atol=1e-12 * np.abs(r).max())
             assert np.abs(r).max() > 0
-    jac = jax.jacfwd(q)(zero, u, adjoint)
+    jac = jax.jacfwd(lambda d: _perturbed_q(setup, d, u, adjoint))(zero)
     np.testing.assert_allclose(jac, setup["jac"], rtol=1e-9, atol=1e-12 * np.abs(jac).max())
-
-    def batch_loss(delta, adj):
-        a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
-        qs = ss.simulate_batch(a, jnp.stack([u, setup["u_scan"]]), dt=dt, adjoint=adj,
-                               stepping=setup["plan"])
-        return jnp.sum(qs ** 2) / 1e-12
-
-    np.testing.assert_allclose(jax.grad(batch_loss)(zero, adjoint),
-                               jax.grad(batch_loss)(zero, ss.CheckpointedScan()), rtol=1e-9)
+    np.testing.assert_allclose(jax.grad(lambda d: _batch_loss(setup, d, adjoint))(zero),
+                               forward_mode["batch"], rtol=1e-9)
 
 
 def test_zba_has_no_influence_in_pure_stick(setup):
