@@ -378,3 +378,24 @@ def test_levenberg_marquardt_steps_are_optimistixs():
                 break
         assert ours.terminate
     assert rejected > 0  # the trust region's rejections took part
+
+
+def test_a_trial_step_off_the_scale_gives_infinite_values_without_warnings():
+    """A solver's trial θ in the hundreds (a direction the data barely see) maps to
+    infinite or NaN values, silently: the trial's cost is then not finite and the
+    solver rejects it (the numpy transforms once printed overflow warnings in the
+    middle of a diagnosis)."""
+    import warnings
+
+    act = ss.lu2015_slc1720()
+    pmap = ParameterMap.make(act, ["Mp", "pi_weights"])
+    theta = np.full(pmap.size, 800.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        values = pmap.physical(theta)
+        jac = pmap.value_jacobian(theta)
+        pmap.actuator(theta, xp=np)
+    assert np.isinf(values["Mp"]) and not np.all(np.isfinite(values["pi_weights"]))
+    assert not np.all(np.isfinite(jac))
+    # Within the scale nothing changed: θ = 0 is the start.
+    np.testing.assert_allclose(pmap.physical(np.zeros(pmap.size))["Mp"], act.piezo.Mp)

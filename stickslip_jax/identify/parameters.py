@@ -146,6 +146,16 @@ class FreeParameter:
     def to_physical(self, theta, *, xp=jnp):
         """Physical value(s) from the slice ``theta`` of the parameter vector; ``xp`` is
         ``jax.numpy`` (traceable) or ``numpy`` (for a concrete θ: nothing compiled)."""
+        if xp is np:
+            # A solver's trial step far off the scale (|θ| in the hundreds along a
+            # direction the data barely see) gives an infinite value, and the trial an
+            # infinite or NaN cost, which the solver rejects: that is the meaning
+            # intended, not an accident to warn about.
+            with np.errstate(over="ignore", invalid="ignore"):
+                return self._to_physical(theta, np)
+        return self._to_physical(theta, xp)
+
+    def _to_physical(self, theta, xp):
         start = xp.asarray(self.start)
         theta = xp.asarray(theta)
         if self.kind == "log":
@@ -168,7 +178,12 @@ class FreeParameter:
 
     def derivative(self, theta) -> np.ndarray:
         """``∂value_i/∂θ_j`` (size, size) at the slice ``theta`` [value unit per unit of
-        θ], in numpy (the transforms' derivatives written out)."""
+        θ], in numpy (the transforms' derivatives written out; infinite far off the
+        scale, as :meth:`to_physical`)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self._derivative(theta)
+
+    def _derivative(self, theta) -> np.ndarray:
         theta = np.atleast_1d(np.asarray(theta, dtype=float))
         start = np.atleast_1d(np.asarray(self.start, dtype=float))
         if self.kind == "log":
