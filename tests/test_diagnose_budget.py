@@ -196,3 +196,30 @@ def test_the_cli_takes_a_multiple_of_the_default_and_refuses_seconds(tmp_path):
     res = runner.invoke(app, ["diagnose", str(tmp_path), "--out", str(tmp_path / "o"),
                               "--work-budget", "-1"])
     assert res.exit_code == 2 and "--work-budget must be 0" in res.output
+
+
+def test_the_learned_correction_reserve_covers_its_three_fits():
+    """The reserve kept for the learned correction is the work of its three fits at
+    max_steps: the refit's held stage (the PI weights held), its full stage, and the
+    fit of the kept features (at most as many columns)."""
+    import numpy as np
+
+    import stickslip_jax as ss
+    from stickslip_jax.diagnose.problem import Problem
+    from stickslip_jax.diagnose.refit import RefitSetup
+    from stickslip_jax.identify.dataset import Dataset
+    from stickslip_jax.model.extensions import LEARNED_FEATURES
+    from stickslip_jax.synthetic import paper_protocol, simulate_set
+
+    act = ss.lu2015_slc1720()
+    specs = paper_protocol(periods=2, amplitudes=(60.0,), frequencies=(500.0,),
+                           step_duration_s=0.01, sine_periods=1)[:2]
+    data = Dataset.from_recordings(simulate_set(act, specs, noise_m=1e-9, seed=1))
+    problem = Problem(data, np.full(len(data), 1e-9), {}, None)
+    setup = RefitSetup(problem, [], BASELINE_COLUMNS, 25)
+    n, k = problem.samples, BASELINE_COLUMNS + len(LEARNED_FEATURES)
+    held = np.size(act.hysteresis.weights)
+    factor = problem.plan_factor(act)
+    want = fit_work(n, k - held, 25, factor) + 2 * fit_work(n, k, 25, factor)
+    assert setup.learned_reserve(act) == pytest.approx(want, rel=1e-12)
+    assert want > 2 * fit_work(n, k, 25, factor)  # the held stage counts

@@ -48,14 +48,14 @@ class RefitSetup:
                                  for s in specs.values())
 
     def learned_reserve(self, act: Actuator) -> float:
-        """Work kept for the learned correction, which follows when nothing explains:
-        two full fits with the baseline free, from ``act`` [sample-evaluations]. Its
-        fits are a refit of every feature (the PI weights held, then all) and a fit
-        of the kept ones from there (:func:`~.learned.fit_learned`); the held stage,
-        at about a third of the columns, is left out of the reserve, so at worst the
-        correction spends a fifth more than kept."""
-        return 2 * self.problem.fit_estimate(act, self.n_base + len(LEARNED_FEATURES),
-                                             self.max_steps)
+        """Work kept for the learned correction, which follows when nothing explains,
+        from ``act`` [sample-evaluations]: its refit of every feature with the baseline
+        free (both stages, the PI weights held first: :meth:`~.problem.Problem.
+        refit_estimate`) and the fit of the kept features from there (at most as many
+        columns), each at ``max_steps`` (:func:`~.learned.fit_learned`)."""
+        columns = self.n_base + len(LEARNED_FEATURES)
+        return (self.problem.refit_estimate(act, columns, self.max_steps)
+                + self.problem.fit_estimate(act, columns, self.max_steps))
 
 
 @dataclass(frozen=True)
