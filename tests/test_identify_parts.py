@@ -399,3 +399,49 @@ def test_a_trial_step_off_the_scale_gives_infinite_values_without_warnings():
     assert not np.all(np.isfinite(jac))
     # Within the scale nothing changed: θ = 0 is the start.
     np.testing.assert_allclose(pmap.physical(np.zeros(pmap.size))["Mp"], act.piezo.Mp)
+
+
+def test_a_rejected_point_costs_a_value_not_a_jacobian():
+    """Given a value-only function, the solver evaluates a tried point's residual
+    first and its Jacobian only once the point is accepted: the same steps, decisions
+    and optimum as evaluating both at every point, and one Jacobian per accepted
+    point."""
+    from stickslip_jax.identify.solve import solve_least_squares
+
+    t = np.linspace(0.0, 1.0, 200)
+    y = 2.0 * np.exp(-1.3 * t) + 0.01 * np.random.default_rng(0).standard_normal(200)
+
+    @jax.jit
+    def residuals(th):
+        return th[0] * jnp.exp(-th[1] * t) - y
+
+    calls = {"jacobian": 0, "value": 0}
+    jac_of = jax.jit(jax.jacfwd(residuals))
+
+    def jacobian(th):
+        calls["jacobian"] += 1
+        th = jnp.asarray(th)
+        return np.asarray(residuals(th)), np.asarray(jac_of(th))
+
+    def value(th):
+        calls["value"] += 1
+        return np.asarray(residuals(jnp.asarray(th)))
+
+    # Nearly undamped steps from far away: the first ones overshoot and are rejected.
+    kw = {"initial_damping": 1e-9, "gn_tol": 1e-4, "max_steps": 60}
+    both = solve_least_squares(residuals, jnp.array([0.2, 6.0]), jacobian=jacobian, **kw)
+    n_both = calls["jacobian"]
+    calls.update(jacobian=0, value=0)
+    lazy = solve_least_squares(residuals, jnp.array([0.2, 6.0]), jacobian=jacobian,
+                               value=value, **kw)
+    assert both.converged and lazy.converged
+    assert lazy.iterations == both.iterations
+    np.testing.assert_allclose(lazy.theta, both.theta, rtol=1e-12)
+    assert lazy.cost_end == pytest.approx(both.cost_end, rel=1e-12)
+    # Every point tried got a value; only the accepted ones (and the start) a Jacobian.
+    assert n_both == both.iterations + 1
+    assert calls["value"] == lazy.iterations + 1
+    rejected = n_both - calls["jacobian"]
+    assert rejected >= 2, (n_both, calls)
+    print(f"{lazy.iterations} steps, {rejected} rejected: {n_both} Jacobians -> "
+          f"{calls['jacobian']}")

@@ -23,13 +23,15 @@ times). So one evaluation of ``samples`` samples with ``columns`` free parameter
 (:func:`evaluation_work`), where ``samples`` is the padded grid (recordings × the
 longest one's samples: the rows step together), and a Levenberg-Marquardt fit of ``s``
 steps makes ``s + 1`` evaluations (the start, then one per step). Work done is charged
-from the steps the solver reports; work to come is estimated before it runs from counts
-alone: samples, free parameters, ``max_steps`` (an upper bound: the refits the budget
-guards mostly stop there; a refit's two stages each at ``max_steps``,
-:meth:`~.problem.Problem.refit_estimate`), the plan its start needs. These counts do not
-depend on the machine; they depend on the data only through the solver's step counts
-and the plans of the parameter values it reaches, which are the same wherever the
-arithmetic is.
+from the steps the solver reports, each as one evaluation with its columns: an upper
+bound since a rejected point costs a value pass alone (the solver's ``value``; the
+count was kept so that no decision moved with it); work to come is estimated before
+it runs from counts alone: samples, free parameters, ``max_steps`` (an upper bound:
+the refits the budget guards mostly stop there; a refit's two stages each at
+``max_steps``, :meth:`~.problem.Problem.refit_estimate`), the plan its start needs.
+These counts do not depend on the machine; they depend on the data only through the
+solver's step counts and the plans of the parameter values it reaches, which are the
+same wherever the arithmetic is.
 
 Counting the plan matters where a fit starts at a fast time scale (a drive stage with
 a sub-µs time constant, a stiff contact, a high structural mode): with the same samples

@@ -102,9 +102,24 @@ class FitProgram:
             r, jac = self._batched(jnp.asarray(theta, dtype=float))
             return np.asarray(r), np.asarray(jac)
         r, jac = self._shared(theta)  # in metres
-        weight = np.repeat(np.asarray(self.residuals.inv_sigma), r.size // len(
-            self.residuals.inv_sigma))
+        weight = self._weight(r.size)
         return r * weight, jac * weight[:, None]
+
+    def _weight(self, size: int) -> np.ndarray:
+        inv_sigma = np.asarray(self.residuals.inv_sigma)
+        return np.repeat(inv_sigma, size // len(inv_sigma))
+
+    @property
+    def value(self):
+        """``θ ↦`` the whitened residual alone, through the value-only shared program
+        (None on an accelerator, whose one program gives both)."""
+        if self._shared is None:
+            return None
+
+        def value(theta):
+            r = self._shared.value(theta)
+            return r * self._weight(r.size)
+        return value
 
 
 @eqx.filter_jit
@@ -271,12 +286,17 @@ class Problem:
                 r, jac = without_span(basis, r), without_span(basis, jac)
             return r, jac
 
+        value = program.value
+        if value is not None and basis is not None:
+            def value(theta, whole=value):
+                return without_span(basis, whole(theta))
+
         res = program.residuals if basis is None else ProjectedResiduals(
             program.residuals, jnp.asarray(basis))
         out = solve_least_squares(res, jnp.asarray(theta0, dtype=float),
                                   max_steps=max_steps, label=label, gn_tol=JOINT_GN_TOL,
                                   initial_damping=initial_damping, echo=None,
-                                  jacobian=jacobian)
+                                  jacobian=jacobian, value=value)
         self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations,
                                     program.factor))
         fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)

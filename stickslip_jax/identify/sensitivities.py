@@ -269,6 +269,13 @@ class StepJacobian:
             self._outputs.pop(next(iter(self._outputs)))
         return self.res.jacobian_from_outputs(q[:, :t], dq[:, :t])
 
+    def value(self, theta) -> np.ndarray:
+        """The residual (N,) at ``theta`` alone, through the value-only program (what a
+        point the solver may reject needs)."""
+        q = self.programs.simulate(self.actuator(theta), self.res.plan, self.rows)
+        return np.asarray(self.res.from_output(q[:, :self.res.data.voltages.shape[1]],
+                                               xp=np))
+
     def actuator(self, theta):
         """The step's actuator at ``theta`` (``pmap.actuator`` in numpy)."""
         return self.res.pmap.actuator(np.asarray(theta, dtype=float), xp=np)

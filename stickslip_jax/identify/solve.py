@@ -159,27 +159,37 @@ class LevenbergMarquardtSteps:
         """The fall of ``Σ residual²`` the linear model predicted for the point last
         tried (inf for the start)."""
 
-    def step(self, value, jac) -> bool:
-        """Take the residual ``value`` (N,) and Jacobian ``jac`` (N, k) at
-        :attr:`y_eval`; returns whether that point was accepted."""
+    def decide(self, value, reference_cost: float | None = None) -> tuple[bool, bool]:
+        """``(accept, good)`` for the residual ``value`` (N,) at :attr:`y_eval` (the
+        Jacobian is not needed to decide): accepted when the cost fell by at least
+        ``LOW_CUTOFF`` of the fall the linear model predicted, good when by
+        ``HIGH_CUTOFF`` of it. ``reference_cost``: the cost at the last accepted point
+        as the program that computed ``value`` has it (default: ``Σ residual²`` of the
+        accepted residual); sets :attr:`predicted_fall`."""
         value = np.asarray(value, dtype=float)
-        jac = np.asarray(jac, dtype=float)
-        first = self.residual is None
-        residual = np.zeros_like(value) if first else self.residual
-        rtr = float(np.sum(residual**2))
-        cost_diff = 0.5 * float(np.sum(value**2)) - 0.5 * rtr
-        if first:
-            accept, good = True, False
-        else:
-            predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y) + residual) ** 2))
-                               - rtr)
-            self.predicted_fall = -2.0 * predicted
-            accept = bool(cost_diff <= self.LOW_CUTOFF * predicted)
-            good = bool(cost_diff < self.HIGH_CUTOFF * predicted and predicted < 0)
+        if self.residual is None:
+            return True, False
+        rtr = float(np.sum(self.residual**2))
+        reference = rtr if reference_cost is None else float(reference_cost)
+        cost_diff = 0.5 * float(np.sum(value**2)) - 0.5 * reference
+        predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y) + self.residual)
+                                        ** 2)) - rtr)
+        self.predicted_fall = -2.0 * predicted
+        return (bool(cost_diff <= self.LOW_CUTOFF * predicted),
+                bool(cost_diff < self.HIGH_CUTOFF * predicted and predicted < 0))
+
+    def step(self, value, jac, decision: tuple[bool, bool] | None = None) -> bool:
+        """Take the residual ``value`` (N,) and Jacobian ``jac`` (N, k) at
+        :attr:`y_eval`; returns whether that point was accepted. ``decision``: what
+        :meth:`decide` said of the point (from a value-only evaluation), else decided
+        here; a rejected point needs no Jacobian (``jac`` None)."""
+        value = np.asarray(value, dtype=float)
+        accept, good = self.decide(value) if decision is None else decision
         self.step_size *= (self.HIGH_CONSTANT if good else 1.0) if accept else self.LOW_CONSTANT
         if accept:
+            residual = np.zeros_like(value) if self.residual is None else self.residual
             self.terminate = self._cauchy(self.y_eval - self.y, value, value - residual)
-            self.y, self.residual, self.jac = self.y_eval, value, jac
+            self.y, self.residual, self.jac = self.y_eval, value, np.asarray(jac, dtype=float)
             self.accepted += 1
         else:
             self.terminate = False
@@ -251,7 +261,8 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                         gn_tol: float | None = None, initial_damping: float = 1.0,
                         scale_by_jacobian: bool = True, label: str = "fit",
                         echo: Callable[[str], None] | None = None,
-                        jacobian: Callable | None = None) -> SolveResult:
+                        jacobian: Callable | None = None,
+                        value: Callable | None = None) -> SolveResult:
     """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
 
     :class:`LevenbergMarquardtSteps` (optimistix's solver, in numpy) takes the steps;
@@ -305,10 +316,18 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
 
     ``jacobian``: ``θ ↦ (residuals(θ), ∂residuals/∂θ)`` evaluated elsewhere (the
     identification's shared programs, :class:`~.sensitivities.StepJacobian`) instead
-    of :class:`ColumnSplitJacobian` over ``residuals``.
+    of :class:`ColumnSplitJacobian` over ``residuals``. ``value``: with it,
+    ``θ ↦ residuals(θ)`` alone (a value-only program, a fraction of a Jacobian's work):
+    each point a step tries is then evaluated by ``value`` first and accepted or
+    rejected on that, and only an accepted point gets its Jacobian. A rejected point
+    (five in a row end a stalled fit; a start far from the optimum may take a dozen)
+    then costs a simulation instead of a Jacobian. The acceptance test compares costs
+    of one program: the start's and each accepted point's are evaluated by ``value``
+    too.
 
     Never raises on failure: the verdict is in the result.
     """
+    value_of, value = value, None  # (``value`` below: the residual at a point)
     theta0 = jnp.asarray(theta0, dtype=float)
     start = time.perf_counter()
     if theta0.size == 0:
@@ -357,12 +376,27 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     ok, message, n = False, f"not converged: hit max_steps={max_steps}", 0
     distance = np.inf  # the Gauss-Newton test's at the last accepted point [SE²]
     rejected_run = 0  # consecutive rejected steps
+
+    def value_cost(phi) -> tuple[float, np.ndarray]:  # by the value-only program
+        r = np.asarray(value_of(np.asarray(theta0) + np.asarray(phi) / d))
+        return float(np.sum(r**2)), r
+
+    reference_cost = value_cost(phi0)[0] if value_of is not None else None
     # The first step only takes the start (always accepted); each later one tries the
     # point the one before proposed, and accepts or rejects it.
     for n in range(max_steps + 1):
-        if n:  # the point this step tries (the start's was evaluated above)
+        decision = None
+        if n and value_of is not None:  # the point this step tries, its value first
+            trial_cost, trial = value_cost(lm.y_eval)
+            decision = lm.decide(trial, reference_cost)
+            if decision[0]:
+                value, jac = evaluate(lm.y_eval, (theta0, d))
+                reference_cost = trial_cost
+            else:
+                value, jac = trial, None
+        elif n:  # the point this step tries (the start's was evaluated above)
             value, jac = evaluate(lm.y_eval, (theta0, d))
-        if lm.step(value, jac):
+        if lm.step(value, jac, decision):
             jac_accepted, rejected_run = jac, 0
         elif lm.predicted_fall <= np.sum(lm.residual**2) / max(lm.residual.size - phi0.size, 1):
             # Rejected where the model promised less than one noise variance σ̂²: the

@@ -367,7 +367,9 @@ def identify(
         evaluator = StepJacobian(res, programs, rows) if programs is not None else None
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
         out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=name,
-                                  echo=say, jacobian=evaluator, **STEP_SOLVE.get(name, {}))
+                                  echo=say, jacobian=evaluator,
+                                  value=evaluator.value if evaluator is not None else None,
+                                  **STEP_SOLVE.get(name, {}))
         act = (evaluator.actuator(out.theta) if evaluator is not None
                else pmap.actuator(jnp.asarray(out.theta)))
         # NRMSEs from the residuals the solver evaluated (no extra simulation).
