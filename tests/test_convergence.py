@@ -37,10 +37,6 @@ RATES = (2_500.0, 25_000.0, 100_000.0)
 CASES = [(a, f, d) for f in (50.0, 500.0) for a in (40.0, 60.0) for d in ("forward", "backward")]
 TARGET_NM = 0.05
 
-# One worker computes the module's expensive fixtures once (pytest -n 2 --dist loadgroup;
-# split between the workers, the grid was computed twice: 43 s and 41 s).
-pytestmark = pytest.mark.xdist_group("convergence_grid")
-
 
 def rms_nm(q, ref):
     """RMS of the offset-removed difference along the last axis [nm]."""
