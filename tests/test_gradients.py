@@ -125,22 +125,29 @@ def test_reverse_mode_gradient(setup):
     assert np.all(np.abs(g) > 1e-6 * np.abs(g).max())
 
 
-def _perturbed_q(setup, delta, voltage, adjoint):
+def _perturbed(delta):
+    """The default profile with the NAMES scaled by ``1 + delta``."""
     base = ss.lu2015_slc1720()
-    a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
-    return ss.simulate(a, voltage, dt=DT, adjoint=adjoint, stepping=setup["plan"])
+    return eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
+
+
+def _perturbed_q(setup, delta, voltage, adjoint):
+    return ss.simulate(_perturbed(delta), voltage, dt=DT, adjoint=adjoint,
+                       stepping=setup["plan"])
 
 
 def _loss(setup, target, delta, voltage, adjoint):
     return jnp.mean((_perturbed_q(setup, delta, voltage, adjoint) - target) ** 2) / 1e-18
 
 
+def _batch_q(setup, delta, adjoint):
+    """Both drives of the setup in one batched simulation, (2, 300)."""
+    return ss.simulate_batch(_perturbed(delta), jnp.stack([setup["u"], setup["u_scan"]]),
+                             dt=DT, adjoint=adjoint, stepping=setup["plan"])
+
+
 def _batch_loss(setup, delta, adjoint):
-    base = ss.lu2015_slc1720()
-    a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
-    qs = ss.simulate_batch(a, jnp.stack([setup["u"], setup["u_scan"]]), dt=DT,
-                           adjoint=adjoint, stepping=setup["plan"])
-    return jnp.sum(qs ** 2) / 1e-12
+    return jnp.sum(_batch_q(setup, delta, adjoint) ** 2) / 1e-12
 
 
 @pytest.fixture(scope="module")
@@ -157,15 +164,9 @@ def forward_mode(setup):
     jac_u = np.asarray(jax.jacfwd(lambda v: _perturbed_q(setup, zero, v, plain))(u))
     grad = {0: 2 * r @ setup["jac"] / r.size / 1e-18, 1: 2 * r @ jac_u / r.size / 1e-18}
     grad[(0, 1)] = (grad[0], grad[1])
-    voltages = jnp.stack([u, setup["u_scan"]])
-
-    def qs(delta):
-        base = ss.lu2015_slc1720()
-        a = eqx.tree_at(_where, base, tuple(jnp.stack(_where(base)) * (1.0 + delta)))
-        return ss.simulate_batch(a, voltages, dt=DT, adjoint=plain, stepping=setup["plan"])
-
-    jac_b = np.asarray(jax.jacfwd(qs)(zero))  # (2, 300, 7)
-    batch = 2 * np.einsum("bt,btk->k", np.asarray(qs(zero)), jac_b) / 1e-12
+    jac_b = np.asarray(jax.jacfwd(lambda d: _batch_q(setup, d, plain))(zero))  # (2, 300, 7)
+    qs = np.asarray(_batch_q(setup, zero, plain))
+    batch = 2 * np.einsum("bt,btk->k", qs, jac_b) / 1e-12
     return {"target": target, "grad": grad, "batch": batch}
 
 
