@@ -11,7 +11,12 @@ does both for you)::
     ss.fast_cpu_loops()
 """
 
-from .adjoint import AbstractAdjoint, CheckpointedScan, ForwardSensitivities
+from .adjoint import (
+    AbstractAdjoint,
+    CheckpointedScan,
+    ForwardSensitivities,
+    with_forward_jacobian,
+)
 from .diagnose import CATALOGUE, Diagnosis, Policy, Verdict, diagnose
 from .drive_inference import DriveInfo, infer_drive
 from .files import InputOverwriteError, OutputExistsError
@@ -157,7 +162,7 @@ __all__ = [
     "params_from_actuator", "save_params", "save_recording", "sawtooth", "simulate",
     "simulate_batch", "simulate_recording", "simulate_recordings", "simulate_states", "sine",
     "stack_drives", "Trajectory",
-    "AbstractAdjoint", "CheckpointedScan", "ForwardSensitivities",
+    "AbstractAdjoint", "CheckpointedScan", "ForwardSensitivities", "with_forward_jacobian",
     "step", "transition_alpha",
     "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
     "CATALOGUE", "Diagnosis", "Policy", "Verdict", "diagnose",

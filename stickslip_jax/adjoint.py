@@ -11,8 +11,10 @@ then a product with that Jacobian. With :func:`~stickslip_jax.xla_flags.fast_cpu
 (the CLI's, tests' and notebooks' setting) the loops compile natively, reverse mode
 cost about 3.5-5 forward runs with the plain fixed-step scheme; with the default
 stepping's located switches and refined intervals (``cond``s whose both branches
-reverse mode stores and replays) a gradient costs about 45 forward runs, so forward
-sensitivities win up to about 60 parameters (:func:`default_max_directions`).
+reverse mode stores and replays) a gradient costs as much as forward sensitivities
+over about 85 parameters, and compiles about 10x longer (over two minutes against
+11-13 s: the native loop kernels of the backward pass are large), so forward
+sensitivities are the default up to 128 parameters (:func:`default_max_directions`).
 
 - :class:`ForwardSensitivities` (the default): the simulation gets a custom JVP whose
   tangent is ``J·t`` with ``J`` the dense Jacobian with respect to the *perturbed*
@@ -22,10 +24,13 @@ sensitivities win up to about 60 parameters (:func:`default_max_directions`).
   build ``J`` once, so they cost what they would without it. The recorded voltage
   keeps the ordinary derivative (a gradient with respect to thousands of samples is
   what reverse mode is for), and so does everything when more than ``max_directions``
-  scalars are perturbed (``eqx.filter_grad`` over a whole actuator, a network's
-  weights). Values and derivatives are the same as with plain differentiation; only
-  the cost changes. The price: one ``jax.jvp`` whose tangent mixes n parameters costs
-  the whole n-column Jacobian (a tangent in one parameter costs one tangent).
+  scalars are perturbed (a network's weights; ``eqx.filter_grad`` over a whole
+  default actuator, 85 scalars, stays below the default limit). For a function of a
+  few numbers that reach the simulator through the voltage (a waveform's knots), see
+  :func:`with_forward_jacobian`. Values and derivatives are the same as with plain
+  differentiation; only the cost changes. The price: one ``jax.jvp`` whose tangent
+  mixes n parameters costs the whole n-column Jacobian (a tangent in one parameter
+  costs one tangent).
 - :class:`CheckpointedScan`: plain JAX differentiation of the scan, each sample step
   checkpointed. Any argument, any mode; the choice for a single ``jax.jvp`` along a
   direction that mixes many parameters.
@@ -71,14 +76,18 @@ class AbstractAdjoint(eqx.Module):
 def default_max_directions() -> int:
     """Where :class:`ForwardSensitivities` hands over to reverse mode, in perturbed scalars.
 
-    Measured on the benchmark trace (1 s, 25 kHz) with the simulator's default stepping
-    (located switches and refined intervals, whose ``cond``s reverse mode must store and
-    replay), as multiples of one forward run: ``jax.jacfwd`` costs 1.3, 3.1, 14.7 and
-    33.9 for 1, 3, 9 and 44 parameters, reverse-mode ``jax.grad`` about 45 whatever
-    their number (and 7x longer to compile). Forward sensitivities win up to about 60
-    parameters: 64, on every backend.
+    Measured with native CPU loops and the simulator's default stepping (located
+    switches and refined intervals, whose ``cond``s reverse mode must store and
+    replay), ``benchmarks/bench_gradient_modes.py``: the gradient over every leaf of
+    the default actuator (85 scalars) runs as fast from forward sensitivities as in
+    reverse mode (1 s trace: 17.75 against 17.80 s; 376 samples: 0.295 against
+    0.304 s) and compiles in 11-13 s against 138-140 s. Forward mode's run time grows
+    with the directions (at 128 about 1.5x reverse mode's on the 1 s trace), so a
+    fit that takes more than a dozen gradients over 100-128 parameters of long traces
+    gains from ``ForwardSensitivities(max_directions=64)``; one gradient, or many of
+    short traces, from this default: 128, on every backend.
     """
-    return 64
+    return 128
 
 
 class CheckpointedScan(AbstractAdjoint):
@@ -152,3 +161,38 @@ class ForwardSensitivities(AbstractAdjoint):
 
 DEFAULT_ADJOINT = ForwardSensitivities()
 """The adjoint ``simulate`` and ``simulate_batch`` use unless told otherwise."""
+
+
+def with_forward_jacobian(fn: Callable) -> Callable:
+    """``fn`` whose derivatives all come from its dense Jacobian, built in forward mode.
+
+    For a function of a few numbers that drive a simulation through a long input,
+    e.g. the knots of a drive waveform: the simulator's rule keeps the *voltage's*
+    ordinary derivative (reverse mode, built for thousands of samples), and reverse
+    mode through the simulator compiles slowly with
+    :func:`~stickslip_jax.xla_flags.fast_cpu_loops` (measured in
+    ``benchmarks/bench_gradient_modes.py``: an 8-knot waveform's gradient over 3
+    periods compiled in about 67 s and ran in 0.11 s, against 9 s and 0.04 s here).
+
+    ``fn(x)``: one argument, a pytree of floating arrays (close over the others), any
+    pytree of arrays out. The wrapped function has the same value; a JVP along ``t``
+    is ``J·t``, with ``J`` from one vmapped forward-mode pass over every scalar of
+    ``x`` (:func:`value_and_jacfwd`), and ``jax.grad`` takes its transpose ``Jᵀ·c``.
+    So any derivative costs the whole Jacobian: worth it while ``x`` holds a few
+    dozen scalars at most.
+    """
+    from jax.flatten_util import ravel_pytree
+
+    @jax.custom_jvp
+    def wrapped(x):
+        return fn(x)
+
+    @wrapped.defjvp
+    def rule(primals, tangents):
+        (x,), (t,) = primals, tangents
+        flat, unravel = ravel_pytree(x)
+        value, jac = value_and_jacfwd(lambda f: fn(unravel(f)), flat)
+        t_flat, _ = ravel_pytree(t)
+        return value, jax.tree.map(lambda j: jnp.tensordot(j, t_flat, axes=1), jac)
+
+    return wrapped

@@ -173,7 +173,7 @@ def simulate(
     refined intervals; :mod:`stickslip_jax.stepping`); ``substeps`` fixes the sub-steps
     per sample instead (studies). ``adjoint`` chooses how derivatives go through the
     simulation (:mod:`stickslip_jax.adjoint`): the default ``ForwardSensitivities()``
-    gives ``jax.grad`` over a few parameters from forward sensitivities;
+    gives ``jax.grad`` over up to 128 parameters from forward sensitivities;
     ``CheckpointedScan()`` is plain reverse mode through the scan.
 
     Raises :class:`NonFiniteSimulation` (when the result is concrete) if the trace
