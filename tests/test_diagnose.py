@@ -3,7 +3,10 @@ first, removes at least half of the NRMSE excess over the noise floor, adds noth
 the null set, and says "unexplained" for an effect in no catalogue.
 
 The reduced protocol (8 recordings of 0.02-0.06 s: step, sine, scanning and stepping
-sawtooth at 100 and 500 Hz, both directions) keeps one diagnosis near a minute; the
+sawtooth at 100 and 500 Hz, both directions) keeps one diagnosis to about three
+minutes on a 2-core machine, about 70 % of it compiling (each entry attached is an
+actuator structure of its own, whose per-recording programs compile in ~9 s each;
+a later diagnosis in the same process reuses those it shares); the
 full 17-recording protocol on every set of fixtures/concealed/ is
 benchmarks/bench_diagnose.py. The baseline starts from the truth without the effect
 (as `stickslip diagnose --params truth.json --skip-identify`): these tests are about
