@@ -399,6 +399,22 @@ def test_a_trial_step_off_the_scale_gives_infinite_values_without_warnings():
     assert not np.all(np.isfinite(jac))
     # Within the scale nothing changed: θ = 0 is the start.
     np.testing.assert_allclose(pmap.physical(np.zeros(pmap.size))["Mp"], act.piezo.Mp)
+    # A finite residual too large to square: the trial's cost is infinite, rejected,
+    # silently (the solver's value-first test once printed "overflow in square").
+    from stickslip_jax.identify.solve import solve_least_squares
+
+    def value(th):  # steep, and off the scale past |θ| = 1
+        th = float(np.asarray(th)[0])
+        return np.full(3, 1e200) if abs(th) > 1.0 else np.full(3, 40.0 * (th - 0.5))
+
+    def jacobian(th):  # 10x too flat: the first steps overshoot past |θ| = 1
+        return value(th), np.full((3, 1), 4.0)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = solve_least_squares(value, np.zeros(1), max_steps=6, initial_damping=1e-12,
+                                  scale_by_jacobian=False, value=value, jacobian=jacobian)
+    assert out.values > out.jacobians  # points were tried and rejected
 
 
 def test_a_rejected_point_costs_a_value_not_a_jacobian():
@@ -443,5 +459,8 @@ def test_a_rejected_point_costs_a_value_not_a_jacobian():
     assert calls["value"] == lazy.iterations + 1
     rejected = n_both - calls["jacobian"]
     assert rejected >= 2, (n_both, calls)
+    # The result counts them (what a diagnosis's budget charges).
+    assert (both.jacobians, both.values) == (n_both, 0)
+    assert (lazy.jacobians, lazy.values) == (calls["jacobian"], calls["value"])
     print(f"{lazy.iterations} steps, {rejected} rejected: {n_both} Jacobians -> "
           f"{calls['jacobian']}")

@@ -22,10 +22,11 @@ times). So one evaluation of ``samples`` samples with ``columns`` free parameter
 ``samples · (1 + TANGENT_WEIGHT · columns) · plan_factor`` sample-evaluations
 (:func:`evaluation_work`), where ``samples`` is the padded grid (recordings × the
 longest one's samples: the rows step together), and a Levenberg-Marquardt fit of ``s``
-steps makes ``s + 1`` evaluations (the start, then one per step). Work done is charged
-from the steps the solver reports, each as one evaluation with its columns: an upper
-bound since a rejected point costs a value pass alone (the solver's ``value``; the
-count was kept so that no decision moved with it); work to come is estimated before
+steps makes at most ``s + 1`` evaluations with its Jacobian (the start, then one per
+step). Work done is charged from the evaluations the solver counted
+(:func:`solve_work`): one with the Jacobian at the start and at each accepted point,
+one value-only pass at each point tried and at the start (the solver's ``value``
+program; a rejected point gets nothing more). Work to come is estimated before
 it runs from counts alone: samples, free parameters, ``max_steps`` (an upper bound:
 the refits the budget guards mostly stop there; a refit's two stages each at
 ``max_steps``, :meth:`~.problem.Problem.refit_estimate`), the plan its start needs.
@@ -118,11 +119,22 @@ def evaluation_work(samples: int, columns: int, factor: float = 1.0) -> float:
 
 
 def fit_work(samples: int, columns: int, steps: int, factor: float = 1.0) -> float:
-    """A Levenberg-Marquardt fit of ``steps`` steps: ``steps + 1`` evaluations (the start,
-    then one per step), at a plan of :func:`plan_factor` ``factor``
-    [sample-evaluations]. With ``steps = max_steps``: the most it can cost, known before
-    it runs."""
-    return (int(steps) + 1) * evaluation_work(samples, columns, factor)
+    """The most a Levenberg-Marquardt fit of ``steps`` steps costs, at a plan of
+    :func:`plan_factor` ``factor`` [sample-evaluations]: ``steps + 1`` points (the start,
+    then one per step), each evaluated by the value-only program first and with its
+    Jacobian when accepted (every point, at most). With ``steps = max_steps``: known
+    before it runs. What a fit did is :func:`solve_work`."""
+    return (int(steps) + 1) * (evaluation_work(samples, columns, factor)
+                               + evaluation_work(samples, 0, factor))
+
+
+def solve_work(samples: int, columns: int, result, factor: float = 1.0) -> float:
+    """The work a finished fit did [sample-evaluations]: its evaluations with the
+    Jacobian of ``columns`` columns and its value-only ones (``result``: a
+    :class:`~stickslip_jax.identify.solve.SolveResult`, which counts both), at a plan of
+    :func:`plan_factor` ``factor``."""
+    return (int(result.jacobians) * evaluation_work(samples, columns, factor)
+            + int(result.values) * evaluation_work(samples, 0, factor))
 
 
 class Budget:

@@ -24,7 +24,7 @@ from ..identify.steps import (
 )
 from ..model.actuator import Actuator
 from ..stepping import StepPlan
-from .budget import Budget, evaluation_work, fit_work, plan_factor
+from .budget import Budget, evaluation_work, fit_work, plan_factor, solve_work
 from .significance import Significance
 
 
@@ -297,8 +297,8 @@ class Problem:
                                   max_steps=max_steps, label=label, gn_tol=JOINT_GN_TOL,
                                   initial_damping=initial_damping, echo=None,
                                   jacobian=jacobian, value=value)
-        self.budget.charge(fit_work(self.samples, np.size(out.theta), out.iterations,
-                                    program.factor))
+        self.budget.charge(solve_work(self.samples, np.size(out.theta), out,
+                                      program.factor))
         fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)
         self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
                  f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")
@@ -330,10 +330,11 @@ HELD_FIRST = ("pi_weights",)
 
 
 def identification_work(ident, data: Dataset, factor: float) -> float:
-    """The work of an identification [sample-evaluations]: its steps, from the steps
-    each took on its recordings (padded to the longest of them) with its free
-    parameters, then its final simulation of every recording, with the last step's
-    Jacobian when it computed an uncertainty; every step at the
+    """The work of an identification [sample-evaluations]: its steps, from the
+    evaluations each made on its recordings (padded to the longest of them) with its
+    free parameters (:func:`~.budget.solve_work`), then its final simulation of every
+    recording, with the last step's Jacobian when it computed an uncertainty; every
+    step at the
     :func:`~.budget.plan_factor` ``factor`` of its start (each step plans its own
     sub-steps; the start's is the count known before it runs)."""
     lengths = {r.name: len(r.time_s) for r in data.recordings}
@@ -344,6 +345,6 @@ def identification_work(ident, data: Dataset, factor: float) -> float:
         samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
                                            for n in st.recordings)
         last = int(np.size(st.result.theta))
-        work += fit_work(samples, last, st.result.iterations, factor)
+        work += solve_work(samples, last, st.result, factor)
     columns = last if ident.uncertainty is not None else 0
     return work + evaluation_work(int(data.mask.size), columns, factor)

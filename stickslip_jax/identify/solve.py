@@ -42,7 +42,9 @@ class SolveResult:
     ``cost_end`` the sum of squared residuals at the start and the end;
     ``residual_start`` and ``residual`` the residual vectors there; ``jacobian`` the
     Jacobian d residual / d theta at the solution (the last accepted point), which
-    the solver computed anyway.
+    the solver computed anyway. ``jacobians`` and ``values``: the evaluations it made,
+    a residual with its Jacobian and a residual alone (by the ``value`` program), the
+    work a budget charges.
     """
 
     theta: np.ndarray
@@ -55,6 +57,8 @@ class SolveResult:
     residual_start: np.ndarray | None = None
     residual: np.ndarray | None = None
     jacobian: np.ndarray | None = None
+    jacobians: int = 0
+    values: int = 0
 
 
 def jacobian_threads() -> int:
@@ -171,7 +175,8 @@ class LevenbergMarquardtSteps:
             return True, False
         rtr = float(np.sum(self.residual**2))
         reference = rtr if reference_cost is None else float(reference_cost)
-        cost_diff = 0.5 * float(np.sum(value**2)) - 0.5 * reference
+        with np.errstate(over="ignore"):  # a point off the scale costs inf: rejected
+            cost_diff = 0.5 * float(np.sum(value**2)) - 0.5 * reference
         predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y) + self.residual)
                                         ** 2)) - rtr)
         self.predicted_fall = -2.0 * predicted
@@ -335,7 +340,7 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         cost = float(np.sum(r**2))
         return SolveResult(np.asarray(theta0), True, "converged (nothing free)", 0,
                            time.perf_counter() - start, cost, cost, r, r,
-                           np.zeros((r.size, 0)))
+                           np.zeros((r.size, 0)), jacobians=0, values=1)
 
     # The solve runs in φ = d·(θ − θ0); d and θ0 are arguments of the compiled
     # Jacobian, so the scaling is chosen after the first evaluation without compiling
@@ -344,13 +349,18 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
         origin, d = args
         return residuals(origin + phi / d)
 
+    counts = {"jacobians": 0, "values": 0}  # the evaluations made (SolveResult)
     if jacobian is None:
-        evaluate = ColumnSplitJacobian(scaled)
+        evaluate_at = ColumnSplitJacobian(scaled)
     else:
-        def evaluate(phi, args):
+        def evaluate_at(phi, args):
             origin, d = (np.asarray(a) for a in args)
             value, jac = jacobian(origin + np.asarray(phi) / d)
             return np.asarray(value), np.asarray(jac) / d[None, :]
+
+    def evaluate(phi, args):
+        counts["jacobians"] += 1
+        return evaluate_at(phi, args)
 
     phi0 = np.zeros(theta0.shape)
     d = np.ones(theta0.shape)
@@ -378,8 +388,10 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     rejected_run = 0  # consecutive rejected steps
 
     def value_cost(phi) -> tuple[float, np.ndarray]:  # by the value-only program
+        counts["values"] += 1
         r = np.asarray(value_of(np.asarray(theta0) + np.asarray(phi) / d))
-        return float(np.sum(r**2)), r
+        with np.errstate(over="ignore"):  # a point off the scale costs inf (rejected)
+            return float(np.sum(r**2)), r
 
     reference_cost = value_cost(phi0)[0] if value_of is not None else None
     # The first step only takes the start (always accepted); each later one tries the
@@ -447,4 +459,4 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     cost_start, cost_end = (costs[0], costs[-1]) if costs else (np.nan, np.nan)
     theta = np.asarray(theta0) + lm.y / np.asarray(d)
     return SolveResult(theta, ok, message, n, wall, cost_start, cost_end, residual_start,
-                       residual, jac)
+                       residual, jac, **counts)
