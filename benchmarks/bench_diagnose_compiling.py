@@ -15,10 +15,10 @@ Run it with ``STICKSLIP_CACHE_DIR=off`` or not: the script sets no persistent ca
 
 import argparse
 import collections
-import json
-import subprocess
 import time
 from pathlib import Path
+
+from results_record import write_record
 
 import stickslip_jax as ss
 
@@ -88,12 +88,7 @@ def main():
         for p in per_program[:6]:
             print(f"    {p['stage']:32s} {p['program'][:40]:40s} {p['seconds']:6.1f} s "
                   f"({p['count']})", flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"commit": commit, "date": time.strftime("%Y-%m-%d"),
-                                         "rows": rows}, indent=1))
+    write_record(args.json, rows=rows)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from results_record import write_record
 
 ROOT = Path(__file__).resolve().parent.parent
 FS = 25_000.0
@@ -133,13 +134,7 @@ def main():
                       f"{r['compile_s']:6.1f} / {f['compile_s']:5.1f} s, run "
                       f"{r['median_s']:.3f} / {f['median_s']:.3f} s (reverse / forward); "
                       f"difference {row['max_relative_difference']:.1e}", flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
-    record = {"commit": commit, "date": time.strftime("%Y-%m-%d"),
-              "repeats": args.repeats, "rows": rows}
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(record, indent=1))
+    write_record(args.json, repeats=args.repeats, rows=rows)
 
 
 if __name__ == "__main__":

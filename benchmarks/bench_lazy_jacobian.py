@@ -23,13 +23,12 @@ Jacobian and value evaluations.
 """
 
 import argparse
-import json
 import statistics
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
+from results_record import write_record
 
 import stickslip_jax as ss
 
@@ -127,13 +126,7 @@ def main():
               f"{c_lazy['jacobian']} (+{c_lazy['value']} values); median "
               f"{row['median_s']['eager']:.2f} -> {row['median_s']['lazy']:.2f} s "
               f"(x{row['lazy_over_eager']:.2f}); same path: {same}", flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                            capture_output=True, text=True).stdout.strip()
-    record = {"commit": commit, "date": time.strftime("%Y-%m-%d"),
-              "repeats": args.repeats, "rows": rows}
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(record, indent=1))
+    write_record(args.json, repeats=args.repeats, rows=rows)
 
 
 if __name__ == "__main__":
