@@ -615,3 +615,59 @@ def test_an_unconverged_free_sizing_is_carried_on_before_it_bounds_a_refit():
     assert [r.name for r in unbounded(ranked)] == ["stribeck"]
     ranked[1].refitted = True
     assert unbounded(ranked) == []
+
+
+def test_the_baselines_first_order_move_is_the_joint_least_squares_step():
+    # BaselineSpan.move: the δ that takes out the residual's part in the span of J_b
+    # (columns of very different scales, as θ of a mass and of a PI weight are), and
+    # reach its largest |δ|, against the least-squares solution of the full system.
+    from stickslip_jax.diagnose.problem import FIRST_ORDER_REACH, BaselineSpan
+
+    rng = np.random.default_rng(11)
+    n, k = 500, 5
+    j_b = rng.normal(size=(n, k)) * np.array([1e3, 1.0, 1e-2, 30.0, 0.5])
+    span = BaselineSpan.of(j_b)
+    np.testing.assert_allclose(span.basis.T @ span.basis, np.eye(k), atol=1e-12)
+    for size in (0.3, 3.0):
+        delta = size * np.array([0.2, -1.0, 0.5, 0.1, 0.7])
+        noise = rng.normal(size=n)
+        noise -= span.basis @ (span.basis.T @ noise)  # nothing the baseline could take
+        residual = -j_b @ delta + noise
+        np.testing.assert_allclose(span.move(residual), delta, rtol=1e-9)
+        assert span.reach(residual) == pytest.approx(size)
+        assert (span.reach(residual) > FIRST_ORDER_REACH) == (size > 1.0)
+    # A residual the baseline cannot mimic at all asks no move.
+    assert span.reach(noise) < 1e-9
+
+
+def test_an_extrapolated_free_sizing_counts_nothing_and_is_not_carried_on():
+    from stickslip_jax.diagnose.problem import BaselineSpan
+    from stickslip_jax.diagnose.rules import rank_value, refit_reach, unbounded
+    from stickslip_jax.diagnose.sizing import FreeSizing, record_free_sizing
+
+    span = BaselineSpan.of(np.eye(3))
+    rss = 10_000.0
+
+    def free(cost, converged, reach):
+        return FreeSizing("drive_bandwidth", None, np.zeros(1), span, cost, converged, reach)
+
+    r = CandidateResult("drive_bandwidth", score=150.0, size_drop=200.0)
+    record_free_sizing(r, free(6_000.0, True, 0.6), rss)  # within the first-order range
+    assert (r.size_drop_free, r.size_free_converged, r.size_free_extrapolated) == (
+        4_000.0, True, False)
+    assert rank_value(r) == 4_000.0 and refit_reach(r) == 2 * 4_000.0 - 200.0
+    # The same fall with the baseline moved by more than a factor e: the linearisation's
+    # fall, not one a refit can reach. Ranked by its held sizing, bounding nothing.
+    r = CandidateResult("drive_bandwidth", score=150.0, size_drop=200.0)
+    record_free_sizing(r, free(6_000.0, False, 1.7), rss)
+    assert (r.size_drop_free, r.size_free_converged, r.size_free_extrapolated) == (
+        200.0, False, True)
+    assert rank_value(r) == 200.0 and refit_reach(r) == np.inf
+    assert unbounded([r]) == []  # carried on, it would extrapolate further
+    # An unconverged sizing within range is carried on; if that ends beyond the range,
+    # its earlier drop no longer counts either.
+    r = CandidateResult("drive_bandwidth", score=150.0, size_drop=200.0)
+    record_free_sizing(r, free(9_000.0, False, 0.4), rss)
+    assert unbounded([r]) == [r] and r.size_drop_free == 1_000.0
+    record_free_sizing(r, free(6_000.0, False, 2.5), rss)
+    assert r.size_drop_free == 200.0 and unbounded([r]) == []

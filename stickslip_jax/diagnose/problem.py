@@ -5,6 +5,7 @@ every simulation it runs is charged to the work budget (:mod:`.budget`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import equinox as eqx
 import jax
@@ -48,6 +49,50 @@ def without_span(basis, x):
     """``x`` (a vector, or columns) less its part in the span of ``basis`` (orthonormal
     columns): ``x − B(Bᵀx)``; numpy or JAX arrays."""
     return x - basis @ (basis.T @ x)
+
+
+FIRST_ORDER_REACH = 1.0
+"""The largest move [θ] of any baseline coordinate for which the baseline's linearised
+response is trusted: a factor e of a quantity fitted in logarithm (the dynamics, the
+PI weights through their partial sums). A first-order move beyond it is
+extrapolation: the linearised baseline can then "restore" a trace the entry has
+destroyed (a drive lag of hours, the output scaled back by PI weights moved a
+millionfold), a fall of the cost no refit can have."""
+
+
+@dataclass(frozen=True)
+class BaselineSpan:
+    """The span of the baseline's whitened Jacobian ``J_b`` (samples × its fitted
+    quantities' θ, :func:`of`): what the baseline can mimic to first order, and how far
+    it moves to do so.
+
+    ``basis``: orthonormal columns spanning ``J_b`` (Q of the QR of ``J_b`` with unit
+    columns); ``triangle``: that R; ``norms``: ``J_b``'s column norms."""
+
+    basis: np.ndarray
+    triangle: np.ndarray
+    norms: np.ndarray
+
+    @classmethod
+    def of(cls, jacobian) -> BaselineSpan:
+        jacobian = np.asarray(jacobian, dtype=float)
+        norms = np.linalg.norm(jacobian, axis=0)
+        q, r = np.linalg.qr(jacobian / np.where(norms > 0, norms, 1.0))
+        return cls(q, r, norms)
+
+    def move(self, residual) -> np.ndarray:
+        """The baseline's first-order move δ [θ] that takes out the part of
+        ``residual`` in the span: ``argmin |residual + J_b·δ|``, the least-norm one
+        (singular values below 1e-10 of the largest dropped, as a poorly determined
+        direction moves nowhere)."""
+        step = np.linalg.lstsq(self.triangle, -(self.basis.T @ np.asarray(residual)),
+                               rcond=1e-10)[0]
+        return step / np.where(self.norms > 0, self.norms, 1.0)
+
+    def reach(self, residual) -> float:
+        """The largest |δ| of :meth:`move` [θ]: within :data:`FIRST_ORDER_REACH`, the
+        first-order response is the baseline's; beyond, extrapolation."""
+        return float(np.max(np.abs(self.move(residual)), initial=0.0))
 
 
 class ProjectedResiduals(eqx.Module):
@@ -303,6 +348,15 @@ class Problem:
         self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
                  f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")
         return fitted, float(out.cost_end), out
+
+    def residual_at(self, program: FitProgram, theta) -> np.ndarray:
+        """The whitened residual of ``program`` at ``theta``, unprojected (one
+        simulation of the data, charged to the budget)."""
+        value = program.value
+        columns = 0 if value is not None else int(np.size(theta))
+        r = value(theta) if value is not None else program(theta)[0]
+        self.budget.charge(evaluation_work(self.samples, columns, program.factor))
+        return np.asarray(r)
 
     def refit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
               max_steps: int) -> tuple[Actuator, float, object]:

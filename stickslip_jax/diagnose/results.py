@@ -75,6 +75,9 @@ class CandidateResult:
     :attr:`size_drop`; ``-inf`` when not computed; :mod:`.sizing`)."""
     size_free_converged: bool = False
     """That sizing ended by its Gauss-Newton test (at its optimum)."""
+    size_free_extrapolated: bool = False
+    """That sizing ended where the baseline's first-order move passes
+    :data:`~.problem.FIRST_ORDER_REACH`: its drop is not counted (:mod:`.sizing`)."""
     refitted: bool = False
     params: dict = field(default_factory=dict)
     rss_before: float = np.nan

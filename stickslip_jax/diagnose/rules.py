@@ -119,7 +119,7 @@ def refit_reach(r: CandidateResult) -> float:
     """What ``r``'s refit can remove at most, as its sizings bound it: the larger of
     its score and ``2·D_free − D_held`` (``D_held``, ``D_free``: the drops of its sizing
     with the baseline held and free to first order); ``inf`` when the free sizing did
-    not converge (it then bounds nothing).
+    not converge or ended extrapolated (it then bounds nothing).
 
     A refit frees the baseline in full where the free sizing frees it to first order,
     so it can remove more than ``D_free`` only through the baseline's response beyond
@@ -175,9 +175,12 @@ def fallback_refits(ranked: list[CandidateResult],
 def unbounded(ranked: list[CandidateResult]) -> list[CandidateResult]:
     """The entries a fallback refit would take whose free sizing stopped short of its
     optimum (:func:`refit_reach` is then unbounded): carried on first
-    (:func:`~.sizing.carry_on_free_sizing`)."""
+    (:func:`~.sizing.carry_on_free_sizing`). Not one that stopped
+    :attr:`~.results.CandidateResult.size_free_extrapolated`: carried on, it would
+    extrapolate further."""
     return [r for r in ranked if r.waiting and shows_promise(r)
-            and not r.size_free_converged and np.isfinite(r.size_drop_free)]
+            and not r.size_free_converged and not r.size_free_extrapolated
+            and np.isfinite(r.size_drop_free)]
 
 
 def rivals_in_reach(ranked: list[CandidateResult], rss: float, tolerance_rss: float,

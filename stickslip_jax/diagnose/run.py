@@ -228,12 +228,12 @@ def _score(problem: Problem, act: Actuator, base_names: list[str],
     detection limits and the baseline's first-order span
     (:func:`~.scores.score_candidates`; ``base_jacobian``: the baseline's columns at
     ``act`` when a fit already has them) and a result per entry, best score first."""
-    scores, limits, basis = score_candidates(problem, act, base_names, pool, hints,
-                                             base_jacobian)
+    scores, limits, span = score_candidates(problem, act, base_names, pool, hints,
+                                            base_jacobian)
     results = [CandidateResult(name, probe.label, s, b) for name, (s, b, probe, _) in
                sorted(scores.items(), key=lambda kv: -kv[1][0])]
     problem.say("[score] " + ", ".join(f"{r.name} {r.score:.3g}" for r in results))
-    return scores, results, limits, basis
+    return scores, results, limits, span
 
 
 def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Significance:
@@ -495,7 +495,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
 
         # 3. Score.
         t0 = time.perf_counter()
-        scores, results, limits, basis = _score(
+        scores, results, limits, span = _score(
             problem, act, base.names, pool, hints,
             base.jacobian_at_act if rnd == 0 else None)
         timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
@@ -518,7 +518,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         free_sizings: dict[str, FreeSizing] = {}
         sized = size_entries(problem, chosen, pool, scores, act, unpolished, rss,
                              base.names, seeded, round_one=rnd == 0, policy=policy,
-                             baseline_span=basis, free_sizings=free_sizings)
+                             baseline_span=span, free_sizings=free_sizings)
         ranked = sorted([r for r in results if r.name in sized],
                         key=lambda r: -rank_value(r))
         if rnd == 0:

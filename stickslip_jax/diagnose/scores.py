@@ -26,7 +26,7 @@ from ..identify.parameters import ParameterSpec
 from ..model.actuator import Actuator
 from .budget import evaluation_work
 from .catalogue import Candidate, Probe
-from .problem import Problem, without_span
+from .problem import BaselineSpan, Problem, without_span
 
 
 def install_probes(act: Actuator, candidates: Sequence[Candidate], hints: dict):
@@ -54,13 +54,13 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
                      candidates: Sequence[Candidate], hints: dict,
                      base_jacobian: np.ndarray | None = None):
     """Score test of every probe (see the module docstring). Returns ``(scores,
-    limits, basis)``: ``scores`` a dict ``name → (score, strength, probe, shift)`` with each
+    limits, span)``: ``scores`` a dict ``name → (score, strength, probe, shift)`` with each
     candidate's best probe, the Gauss-Newton strength and the baseline θ shift that
     goes with it; ``limits`` a dict ``name →`` detection limit (module docstring:
     ``strength`` in ``unit``, ``effect_nm``, ``probe``), empty until the problem has
-    its :attr:`~.problem.Problem.significance`; ``basis`` an orthonormal basis (samples
-    × baseline parameters) of the span of ``J_b``, what the baseline can mimic to first
-    order (:mod:`.sizing` sizes in its complement too).
+    its :attr:`~.problem.Problem.significance`; ``span`` the span of ``J_b``
+    (:class:`~.problem.BaselineSpan`), what the baseline can mimic to first order
+    (:mod:`.sizing` sizes in its complement too).
 
     ``base_jacobian``: ``J_b`` at ``act`` in the coordinates of ``base_names`` around it,
     when a fit ended there with it (the baseline's polish,
@@ -74,10 +74,8 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
     if base_jacobian is not None:
         jac = np.concatenate([np.asarray(base_jacobian), jac], axis=1)
     n_base = jac.shape[1] - len(entries)
-    jb = jac[:, :n_base]
-    norms = np.linalg.norm(jb, axis=0)
-    jb_n = jb / np.where(norms > 0, norms, 1.0)
-    q, _ = np.linalg.qr(jb_n)
+    span = BaselineSpan.of(jac[:, :n_base])
+    q = span.basis
     out: dict[str, tuple[float, float, Probe, np.ndarray]] = {}
     limits: dict[str, dict] = {}
     sig = problem.significance
@@ -102,15 +100,14 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
         # The baseline's share of the Gauss-Newton step that goes with the strength
         # β: an effect the baseline partly mimics (a rate lag is a creep plus a PI
         # slope change) only pays once the baseline gives back what it absorbed.
-        shift = -np.linalg.lstsq(jb_n, r + c * beta, rcond=1e-10)[0] / np.where(
-            norms > 0, norms, 1.0)
+        shift = span.move(r + c * beta)
         # Each entry's best probe: the highest admissible score, or, when every probe
         # of the entry has the wrong first-order sign, the strongest of them (the one
         # worth sizing in case the sign turns around).
         if cand.name not in out or (score >= 0, abs(score)) > (out[cand.name][0] >= 0,
                                                                 abs(out[cand.name][0])):
             out[cand.name] = (score, beta * spec.scale, probe, shift)
-    return out, limits, q
+    return out, limits, span
 
 
 def _detection_limit(problem: Problem, c: np.ndarray, cc: float, spec: ParameterSpec,

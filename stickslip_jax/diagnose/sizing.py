@@ -40,7 +40,7 @@ from ..identify.parameters import ParameterMap
 from ..model.actuator import Actuator
 from .catalogue import Candidate, Probe
 from .policy import DEFAULT_POLICY, Policy
-from .problem import FitProgram, Problem
+from .problem import FIRST_ORDER_REACH, BaselineSpan, FitProgram, Problem
 from .results import CandidateResult, CandidateStatus
 
 SIZE_STEPS = 15
@@ -118,12 +118,22 @@ class FreeSizing:
     """The held sizing's compiled program (its coordinates)."""
     theta: np.ndarray
     """Where the fit stopped, in those coordinates."""
-    span: np.ndarray
-    """The orthonormal span of the baseline's Jacobian taken out of the residual."""
+    span: BaselineSpan
+    """The span of the baseline's Jacobian taken out of the residual."""
     cost: float
     """Its whitened cost there (projected)."""
     converged: bool
     """It ended by its Gauss-Newton test."""
+    reach: float
+    """The largest move [θ] of a baseline coordinate its cost takes for granted
+    (:meth:`~.problem.BaselineSpan.reach` of the residual where it stopped)."""
+
+    @property
+    def extrapolated(self) -> bool:
+        """It stopped where the baseline's first-order move passes
+        :data:`~.problem.FIRST_ORDER_REACH`: its cost is the linearisation's, not one a
+        refit can reach."""
+        return self.reach > FIRST_ORDER_REACH
 
     def carried_on(self, problem: Problem, max_steps: int = CARRY_ON_STEPS) -> FreeSizing:
         """The same fit carried on from where it stopped, at most ``max_steps`` more
@@ -134,28 +144,50 @@ class FreeSizing:
 
 
 def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, theta,
-                            baseline_span: np.ndarray, *, max_steps: int = SIZE_STEPS,
+                            baseline_span: BaselineSpan, *, max_steps: int = SIZE_STEPS,
                             tag: str = "baseline free to first order") -> FreeSizing:
     """The sized entry's own parameters (``program``'s, from ``theta``, where the held
     sizing ended) fitted to the residual less its part in ``baseline_span``
-    (orthonormal columns spanning the baseline's Jacobian at the round's start): its
-    cost is the cost with the baseline free to first order (module docstring). It goes
-    on in the held sizing's coordinates with its compiled program."""
-    _, cost, out = problem.fit_from(program, theta, max_steps=max_steps,
-                                    label=f"size {name} ({tag})", project=baseline_span)
-    return FreeSizing(name, program, np.asarray(out.theta), baseline_span, float(cost),
-                      bool(out.converged))
+    (the span of the baseline's Jacobian at the round's start): its cost is the cost
+    with the baseline free to first order (module docstring). It goes on in the held
+    sizing's coordinates with its compiled program. Where it stops, the baseline's
+    first-order move is measured (one simulation); beyond
+    :data:`~.problem.FIRST_ORDER_REACH` it is said."""
+    label = f"size {name} ({tag})"
+    _, cost, out = problem.fit_from(program, theta, max_steps=max_steps, label=label,
+                                    project=baseline_span.basis)
+    theta = np.asarray(out.theta)
+    reach = baseline_span.reach(problem.residual_at(program, theta))
+    free = FreeSizing(name, program, theta, baseline_span, float(cost),
+                      bool(out.converged), reach)
+    if free.extrapolated:
+        problem.say(f"[{label}] the baseline's first-order move reaches {reach:.3g} "
+                    f"(θ; trusted up to {FIRST_ORDER_REACH:g}, a factor e): "
+                    f"extrapolated, its drop not counted")
+    return free
+
+
+def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> None:
+    """Set ``res``'s drop with the baseline free to first order from ``free`` (``rss``:
+    the round's start; never below the held drop nor below an earlier free drop) and
+    whether that sizing converged. An :attr:`~FreeSizing.extrapolated` one counts
+    for nothing beyond the held drop and bounds nothing
+    (:func:`~.rules.refit_reach`); it is not carried on (:func:`~.rules.unbounded`)."""
+    if free.extrapolated:
+        res.size_drop_free = res.size_drop
+        res.size_free_converged = False
+        res.size_free_extrapolated = True
+        return
+    res.size_drop_free = max(rss - free.cost, res.size_drop_free, res.size_drop)
+    res.size_free_converged = free.converged
 
 
 def carry_on_free_sizing(problem: Problem, res: CandidateResult, free: FreeSizing,
                          rss: float) -> None:
     """Carry ``res``'s free sizing ``free`` on (:meth:`FreeSizing.carried_on`) and
-    update its drop (from ``rss``, the round's start; never lower than before) and
-    whether it converged: a sizing that stopped short of its optimum bounds nothing
-    (:func:`~.rules.refit_reach`)."""
-    free = free.carried_on(problem)
-    res.size_drop_free = max(rss - free.cost, res.size_drop_free)
-    res.size_free_converged = free.converged
+    record it (:func:`record_free_sizing`): a sizing that stopped short of its optimum
+    bounds nothing (:func:`~.rules.refit_reach`)."""
+    record_free_sizing(res, free.carried_on(problem), rss)
 
 
 def worth_sizing_after_acceptance(chosen: list[CandidateResult], excess: float,
@@ -205,7 +237,7 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
                  unpolished: Actuator, rss: float, base_names: list[str],
                  seeded: set[str], *, round_one: bool,
                  policy: Policy = DEFAULT_POLICY,
-                 baseline_span: np.ndarray | None = None,
+                 baseline_span: BaselineSpan | None = None,
                  free_sizings: dict[str, FreeSizing] | None = None,
                  ) -> dict[str, tuple[Actuator, dict]]:
     """Size each entry of ``chosen`` whose |score| reaches :attr:`~.Policy.score_min`,
@@ -213,7 +245,7 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
     ``unpolished`` too (the polish can bend the baseline to mimic part of an effect, a
     local optimum the joint refit may not leave); the better sizing is kept. Sets each
     sized entry's ``size_drop`` and status, and, given ``baseline_span`` (the
-    orthonormal span of the baseline's Jacobian at ``act``), its ``size_drop_free``
+    span of the baseline's Jacobian at ``act``), its ``size_drop_free``
     (:func:`size_with_baseline_free`; never below ``size_drop``), kept in
     ``free_sizings`` (``name →`` :class:`FreeSizing`) when given; returns ``name →
     (sized actuator, specs)`` (``scores``: :func:`~.scores.score_candidates`'s)."""
@@ -246,8 +278,7 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
             # to the span: its projected cost is ``rss``, the reference of both drops.
             free = size_with_baseline_free(problem, cand.name, program, theta,
                                            baseline_span)
-            res.size_drop_free = max(rss - free.cost, res.size_drop)
-            res.size_free_converged = free.converged
+            record_free_sizing(res, free, rss)
             if free_sizings is not None:
                 free_sizings[res.name] = free
         res.status = CandidateStatus.SIZED
