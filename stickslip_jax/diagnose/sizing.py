@@ -26,6 +26,17 @@ strength this way: a 0.5 µs amplifier lag, half absorbed, removed 10 % of the e
 with the baseline held and all of it once refitted, while an output delay, which the
 baseline cannot absorb, removed 87 % held; ranked by the held drop, the amplifier
 never got a refit.
+
+The first order holds only near the baseline. Where the free sizing stops, the move
+the baseline makes to first order is measured
+(:meth:`~.problem.BaselineSpan.reach`); beyond a factor e in any of its coordinates
+(:data:`~.problem.FIRST_ORDER_REACH`, the cap :func:`first_order_start` puts on the
+score's shift) the sizing is *extrapolated*: the linearised baseline "restores" what
+the entry destroyed (a drive lag long enough to flatten the trace, put back by PI
+weights scaled up in proportion), a fall no refit can have. Its drop is then not
+counted (:func:`record_free_sizing`). Seen on the reduced test protocol: a drive
+low-pass whose free sizing fell by 44 000 at a move of 1.12 while its refit removed
+nothing; the free sizings that a refit confirmed moved the baseline by 0.0001-0.65.
 """
 
 from __future__ import annotations
