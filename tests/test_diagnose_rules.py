@@ -663,6 +663,7 @@ def test_an_extrapolated_free_sizing_counts_nothing_and_is_not_carried_on():
     assert (r.size_drop_free, r.size_free_converged, r.size_free_extrapolated) == (
         200.0, False, True)
     assert rank_value(r) == 200.0 and refit_reach(r) == np.inf
+    assert r.size_free_reach == 1.7  # reported (diagnosis.json)
     assert unbounded([r]) == []  # carried on, it would extrapolate further
     # An unconverged sizing within range is carried on; if that ends beyond the range,
     # its earlier drop no longer counts either.

@@ -78,6 +78,7 @@ def _per_recording(nrmse, analyses, numerical=None) -> list[dict]:
 def _evidence(c) -> dict:
     return {"score_statistic": c.score, "probe": c.probe, "sizing_drop": c.size_drop,
             "sizing_drop_baseline_free": _finite(c.size_drop_free),
+            "sizing_baseline_free_move": _finite(c.size_free_reach),
             "sizing_baseline_free_extrapolated": c.size_free_extrapolated,
             "explained_share_of_excess": _finite(c.explained),
             "chi2_per_sample_after": _finite(c.chi2_after),
@@ -100,6 +101,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
     rounds = [[{"name": c.name, "score_statistic": c.score, "probe": c.probe,
                 "sizing_drop": c.size_drop,
                 "sizing_drop_baseline_free": _finite(c.size_drop_free),
+                "sizing_baseline_free_move": _finite(c.size_free_reach),
                 "sizing_baseline_free_extrapolated": c.size_free_extrapolated,
                 "refitted": c.refitted,
                 "criterion_delta": _finite(c.criterion_delta),

@@ -75,6 +75,9 @@ class CandidateResult:
     :attr:`size_drop`; ``-inf`` when not computed; :mod:`.sizing`)."""
     size_free_converged: bool = False
     """That sizing ended by its Gauss-Newton test (at its optimum)."""
+    size_free_reach: float = np.nan
+    """The largest move [θ] of a baseline coordinate that sizing's cost takes for
+    granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
     size_free_extrapolated: bool = False
     """That sizing ended where the baseline's first-order move passes
     :data:`~.problem.FIRST_ORDER_REACH`: its drop is not counted (:mod:`.sizing`)."""

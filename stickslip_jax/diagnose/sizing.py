@@ -171,10 +171,10 @@ def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, th
     reach = baseline_span.reach(problem.residual_at(program, theta))
     free = FreeSizing(name, program, theta, baseline_span, float(cost),
                       bool(out.converged), reach)
-    if free.extrapolated:
-        problem.say(f"[{label}] the baseline's first-order move reaches {reach:.3g} "
-                    f"(θ; trusted up to {FIRST_ORDER_REACH:g}, a factor e): "
-                    f"extrapolated, its drop not counted")
+    verdict = ("extrapolated, its drop not counted" if free.extrapolated
+               else "within the first order")
+    problem.say(f"[{label}] the baseline's first-order move reaches {reach:.3g} (θ; "
+                f"trusted up to {FIRST_ORDER_REACH:g}, a factor e): {verdict}")
     return free
 
 
@@ -184,6 +184,7 @@ def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> No
     whether that sizing converged. An :attr:`~FreeSizing.extrapolated` one counts
     for nothing beyond the held drop and bounds nothing
     (:func:`~.rules.refit_reach`); it is not carried on (:func:`~.rules.unbounded`)."""
+    res.size_free_reach = free.reach
     if free.extrapolated:
         res.size_drop_free = res.size_drop
         res.size_free_converged = False
