@@ -12,6 +12,7 @@ from ..identify.dataset import Dataset
 from ..model.actuator import Actuator
 from .locate import RecordingResidual
 from .policy import DEFAULT_POLICY, Policy
+from .problem import FIRST_ORDER_REACH
 
 
 class Verdict(enum.StrEnum):
@@ -78,9 +79,6 @@ class CandidateResult:
     size_free_reach: float = np.nan
     """The largest move [θ] of a baseline coordinate that sizing's cost takes for
     granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
-    size_free_extrapolated: bool = False
-    """That sizing ended where the baseline's first-order move passes
-    :data:`~.problem.FIRST_ORDER_REACH`: its drop is not counted (:mod:`.sizing`)."""
     refitted: bool = False
     params: dict = field(default_factory=dict)
     rss_before: float = np.nan
@@ -119,6 +117,12 @@ class CandidateResult:
     actuator: Actuator | None = None
     status: CandidateStatus = CandidateStatus.SCORED
     """Where its round ended (:class:`CandidateStatus`)."""
+
+    @property
+    def size_free_extrapolated(self) -> bool:
+        """That sizing ended where the baseline's first-order move passes
+        :data:`~.problem.FIRST_ORDER_REACH`: its drop is not counted (:mod:`.sizing`)."""
+        return bool(self.size_free_reach > FIRST_ORDER_REACH)
 
     @property
     def waiting(self) -> bool:

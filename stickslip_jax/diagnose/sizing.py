@@ -71,7 +71,7 @@ def first_order_start(problem: Problem, act: Actuator, base_names: list[str],
     pmap = ParameterMap.make(act, base_names)
     # A linearised shift beyond a factor e of any baseline quantity (θ is logarithmic
     # for them) is extrapolation, not a first-order move: cap it.
-    shift = np.clip(shift, -1.0, 1.0)
+    shift = np.clip(shift, -FIRST_ORDER_REACH, FIRST_ORDER_REACH)
     best = None
     for frac in (1.0, 0.5, 0.25, 0.125):
         moved = pmap.actuator(jnp.asarray(frac * shift))
@@ -188,7 +188,6 @@ def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> No
     if free.extrapolated:
         res.size_drop_free = res.size_drop
         res.size_free_converged = False
-        res.size_free_extrapolated = True
         return
     res.size_drop_free = max(rss - free.cost, res.size_drop_free, res.size_drop)
     res.size_free_converged = free.converged
