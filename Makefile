@@ -25,8 +25,12 @@ lint: setup
 	$(BIN)/ruff check .
 
 # Two workers: the tests are single-threaded JAX loops, and this machine has two cores.
+# They share compiled programs through a cache in the environment's folder (fresh with
+# a fresh environment, as in .ci/run); STICKSLIP_CACHE_DIR=off in the environment, or
+# `make test TEST_CACHE=off`, compiles everything in each worker.
+TEST_CACHE ?= $(or $(STICKSLIP_CACHE_DIR),$(abspath $(VENV))/jax-cache)
 test: setup lint
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadgroup
+	STICKSLIP_CACHE_DIR=$(TEST_CACHE) MPLBACKEND=Agg $(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

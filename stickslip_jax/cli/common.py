@@ -20,6 +20,7 @@ import typer
 from typer.core import TyperGroup
 
 from ..blas_threads import limit_blas_threads
+from ..compilation_cache import cache_dir_from_env, use_compilation_cache
 from ..xla_flags import add_xla_flag, fast_cpu_loops
 
 EXIT_INTERNAL = 1
@@ -55,7 +56,8 @@ def fast_cpu_loops_quietly() -> None:
 def setup_jax(*, all_cpu_cores: bool = False) -> None:
     """float64, XLA's native compilation of small loops on a CPU
     (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`), a persistent compilation
-    cache, so a second run skips compiling, and BLAS on one thread
+    cache, so a second run skips compiling (:mod:`~stickslip_jax.compilation_cache`),
+    and BLAS on one thread
     (:mod:`~stickslip_jax.blas_threads`; unless ``OPENBLAS_NUM_THREADS`` says otherwise).
 
     The cache lives in ``$STICKSLIP_CACHE_DIR`` (default ``~/.cache/stickslip_jax``);
@@ -72,15 +74,7 @@ def setup_jax(*, all_cpu_cores: bool = False) -> None:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    cache = os.environ.get("STICKSLIP_CACHE_DIR", str(Path.home() / ".cache" / "stickslip_jax"))
-    if cache.lower() != "off":
-        with contextlib.suppress(Exception):  # a read-only home must not stop the tool
-            Path(cache).mkdir(parents=True, exist_ok=True)
-            jax.config.update("jax_compilation_cache_dir", cache)
-            # Every program, the small ones too: identify compiles ~70 of 0.05 to 0.5 s
-            # (its steps' Levenberg-Marquardt steps, single operations), about 3 s
-            # that a second run would otherwise compile again (issue #28).
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    use_compilation_cache(cache_dir_from_env())
 
 
 def fail(message: str, code: int = EXIT_BAD_INPUT) -> typer.Exit:
