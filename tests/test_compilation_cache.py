@@ -1,0 +1,55 @@
+"""The persistent compilation cache: where it lives, that ``off`` turns it off, and
+that it is the locked, bounded cache (JAX keeps a lock file beside the entries only
+when the cache has a size limit): several processes share it safely."""
+
+import os
+import subprocess
+import sys
+
+from stickslip_jax.compilation_cache import (
+    CACHE_ENV,
+    DEFAULT_CACHE_DIR,
+    cache_dir_from_env,
+    use_compilation_cache,
+)
+
+_COMPILE = """
+import sys, jax, jax.numpy as jnp
+from pathlib import Path
+from stickslip_jax.compilation_cache import use_compilation_cache
+print(use_compilation_cache(Path(sys.argv[1])))
+jax.jit(lambda x: jnp.sin(x) * 2.0)(jnp.arange(3.0)).block_until_ready()
+"""
+
+
+def test_the_folder_comes_from_the_environment(monkeypatch, tmp_path):
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    assert cache_dir_from_env() == DEFAULT_CACHE_DIR
+    assert cache_dir_from_env(default=None) is None
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    assert cache_dir_from_env(default=None) == tmp_path
+    monkeypatch.setenv(CACHE_ENV, " OFF ")
+    assert cache_dir_from_env() is None
+    assert use_compilation_cache(None) is False
+
+
+def test_a_folder_that_cannot_be_made_leaves_the_cache_off(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    assert use_compilation_cache(blocker / "cache") is False
+
+
+def test_compiled_programs_are_kept_locked_and_read_back(tmp_path):
+    cache = tmp_path / "cache"
+    env = {k: v for k, v in os.environ.items() if k != CACHE_ENV}
+    first = subprocess.run([sys.executable, "-c", _COMPILE, str(cache)], env=env,
+                           capture_output=True, text=True, timeout=300, check=True)
+    assert first.stdout.split()[0] == "True"
+    entries = sorted(p.name for p in cache.iterdir())
+    assert ".lockfile" in entries  # the size limit is set, so JAX locks its reads/writes
+    assert any(n.endswith("-cache") for n in entries), entries
+    # A second process finds the program: nothing new is written.
+    subprocess.run([sys.executable, "-c", _COMPILE, str(cache)], env=env,
+                   capture_output=True, text=True, timeout=300, check=True)
+    assert sorted(p.name for p in cache.iterdir() if not p.name.endswith("-atime")) == \
+        sorted(n for n in entries if not n.endswith("-atime"))
