@@ -23,7 +23,9 @@ Columns: hidden effect, named effect (first accepted; ``unexplained`` when the v
 is the unexplained residual; ``-`` when nothing was named), verdict, mean NRMSE before
 and after, the noise floor (mean σ/peak-to-peak), the share of the NRMSE excess over the
 floor removed, wall time (compilation included; ``compile_s`` and
-``programs_compiled`` in the JSON: XLA's tracing and compiling within it).
+``programs_compiled`` in the JSON: XLA's tracing and compiling within it). No
+persistent compilation cache unless ``$STICKSLIP_CACHE_DIR`` names a folder (the
+rows' ``compilation_cache``).
 """
 
 import argparse
@@ -39,11 +41,19 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
+from stickslip_jax.compilation_cache import (  # noqa: E402
+    cache_dir_from_env,
+    use_compilation_cache,
+)
 from stickslip_jax.diagnose import Verdict, diagnose  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
+# No persistent cache unless $STICKSLIP_CACHE_DIR names one (wall times are then those
+# of a run whose programs another run compiled; each row says which, "compilation_cache").
+CACHE_DIR = cache_dir_from_env(default=None)
+CACHE_ON = use_compilation_cache(CACHE_DIR)
 
 ROOT = Path(__file__).resolve().parent.parent
 CONCEALED = ROOT / "fixtures" / "concealed"
@@ -123,6 +133,7 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
         "wall_s": wall, "timings_s": d.timings,
         "compile_s": COMPILE_CLOCK.seconds - compile0[0],
         "programs_compiled": COMPILE_CLOCK.programs - compile0[1],
+        "compilation_cache": str(CACHE_DIR) if CACHE_ON else None,
         "tolerance_chi2": d.significance.get("tolerance_chi2"),
         "detection_limits": d.detection_limits,
     }

@@ -9,6 +9,7 @@ does both for you)::
     jax.config.update("jax_enable_x64", True)
     import stickslip_jax as ss
     ss.fast_cpu_loops()
+    ss.use_compilation_cache()  # optional: a later process reuses the compiled programs
 """
 
 from .adjoint import (
@@ -17,6 +18,7 @@ from .adjoint import (
     ForwardSensitivities,
     with_forward_jacobian,
 )
+from .compilation_cache import use_compilation_cache
 from .diagnose import CATALOGUE, Diagnosis, Policy, Verdict, diagnose
 from .drive_inference import DriveInfo, infer_drive
 from .files import InputOverwriteError, OutputExistsError
@@ -176,7 +178,7 @@ __all__ = [
     "DriveSpec", "paper_protocol", "simulate_set",
     "CEIMElastoPlastic", "ExtraContacts", "multi_contact", "ForceCurve", "StepCurves",
     "force_vs_amplitude", "preload_study", "spread_study", "TiltingHemisphere",
-    "with_hemisphere", "SMALL_LOOP_BYTES", "fast_cpu_loops",
+    "with_hemisphere", "SMALL_LOOP_BYTES", "fast_cpu_loops", "use_compilation_cache",
     "DEFAULT_ZBA_RATIO", "FRICTION_LAWS", "LawParameter", "friction_law_name",
     "register_friction_law",
 ]

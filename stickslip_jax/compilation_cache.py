@@ -43,8 +43,9 @@ def cache_dir_from_env(default: Path | None = DEFAULT_CACHE_DIR) -> Path | None:
     return Path(value) if value else default
 
 
-def use_compilation_cache(path: Path | None) -> bool:
-    """Keep JAX's compiled programs in ``path`` (created if missing; None: do nothing),
+def use_compilation_cache(path: Path | None = DEFAULT_CACHE_DIR) -> bool:
+    """Keep JAX's compiled programs in ``path`` (default :data:`DEFAULT_CACHE_DIR`, the
+    command line's; created if missing; None: do nothing),
     every program however short its compile (identify compiles ~70 of 0.05 to 0.5 s:
     its Levenberg-Marquardt steps, single operations; about 3 s a second run would
     compile again, issue #28), locked and bounded by :data:`CACHE_MAX_BYTES`. Call it
