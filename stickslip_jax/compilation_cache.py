@@ -3,10 +3,13 @@
 Compiling is most of a short run's time (a reduced diagnosis: about 70 %; each actuator
 structure's programs ~9 s of XLA apiece). The persistent cache keeps every compiled
 program on disk, keyed by the program, the XLA flags and the device, so that a second
-process compiling the same program reads it instead (a second `stickslip identify`
-of the same recordings, or a second test worker diagnosing recordings of the same
-lengths). An executable read from the cache is the one a compile would make: results
-do not change, only the time.
+process compiling the same program reads it instead: a second run on the same
+protocol and actuator (new recordings of it: a diagnosis in 34 s instead of 76 s), or
+a second test worker diagnosing the same recordings. A program is the actuator's
+structure at the recordings' lengths and a stepping plan, whose sub-steps are planned
+from the actuator's time scales, so another actuator's data compile their own
+(benchmarks/README). An executable read from the cache is the one a compile would
+make: results do not change, only the time.
 
 Several processes share one cache (the two pytest workers; commands run side by side).
 JAX locks the cache's reads and writes, and evicts its least recently used entries,
