@@ -10,7 +10,8 @@ of 0.02-0.06 s), 1 nm noise, seed 7, the named effect hidden in the identificati
 truth (fixture form), the baseline from the truth without it, one round, the two best
 refitted, 20 steps, three sized, no fallback refits. Compiling is summed from
 ``jax.monitoring``'s ``/jax/core/compile/*`` duration events by their ``fun_name``.
-Run it with ``STICKSLIP_CACHE_DIR=off`` or not: the script sets no persistent cache.
+No persistent cache unless ``$STICKSLIP_CACHE_DIR`` names a folder (then, with a
+cache a first run filled, what is left is tracing and lowering; the JSON records it).
 """
 
 import argparse
@@ -26,10 +27,16 @@ ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
 import jax  # noqa: E402
 
+from stickslip_jax.compilation_cache import (  # noqa: E402
+    cache_dir_from_env,
+    use_compilation_cache,
+)
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import with_effect  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+CACHE_DIR = cache_dir_from_env(default=None)
+CACHE_ON = use_compilation_cache(CACHE_DIR)
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
 STAGES = ("jaxpr_trace_duration", "jaxpr_to_mlir_module_duration",
           "backend_compile_duration")
@@ -85,10 +92,10 @@ def main():
         rows.append(row)
         print(f"{effect}: {row['verdict']} {row['named']}, wall {wall:.1f} s, compiling "
               f"{row['compiling_s']:.1f} s, {row['programs']} programs", flush=True)
-        for p in per_program[:6]:
+        for p in per_program[:10]:
             print(f"    {p['stage']:32s} {p['program'][:40]:40s} {p['seconds']:6.1f} s "
                   f"({p['count']})", flush=True)
-    write_record(args.json, rows=rows)
+    write_record(args.json, rows=rows, compilation_cache=str(CACHE_DIR) if CACHE_ON else None)
 
 
 if __name__ == "__main__":
