@@ -533,7 +533,11 @@ def _interval_integrator(actuator: Actuator, dt, drive, plan: StepPlan):
                 u_end = (volts[at[end_column]] if separate
                          else voltage(tau0 + span * (j + 1) / n))
                 memory = mechanics.commit_memory(y1, memory, u_end)
-            return y1, memory, k_end, total + err
+            # The estimate only decides (a comparison with the tolerance): no tangent.
+            # Left differentiable it starts each loop with a zero tangent and gains one,
+            # so JAX's forward-mode fixpoint traced every enclosing loop's body twice
+            # (the sub-step's eight times) before the zero tangents were dropped.
+            return y1, memory, k_end, total + jax.lax.stop_gradient(err)
 
         k0 = field_with(voltage(tau0), y, memory)
         # Zeros typed like the state (under shard_map a loop carry must keep the state's
