@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from stickslip_jax.model.extensions import (
     Creep,
     ExponentialDrift,
     LowPassInput,
+    RateDependentStroke,
     SensorOutput,
     delayed,
 )
@@ -46,7 +48,7 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
     probe_act, entries = install_probes(base, CATALOGUE, {"peaks_Hz": [2500.0],
                                                            "max_slew_V_s": 1.5e6})
     assert len(entries) >= 16
-    assert sum("drive" in p.label for _, p, _, _ in entries) == 2  # both drive forms
+    assert sum("drive" in e.probe.label for e in entries) == 2  # both drive forms
     assert probe_act.n_states > base.n_states
     # One plan for both (the probes' own modes would otherwise set another step).
     plan = ss.plan_steps(probe_act, rec.dt)
@@ -54,11 +56,56 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
     q1 = ss.simulate(probe_act, u, dt=rec.dt, stepping=plan)
     assert float(jnp.max(jnp.abs(q1 - q0))) < 1e-15
     # ...and each strength moves it.
-    for _, probe, _, spec in entries:
-        value = spec.getter(probe_act)
-        moved = eqx.tree_at(spec.getter, probe_act, value + 20 * spec.scale)
+    for e in entries:
+        value = jnp.asarray(e.spec.getter(probe_act))
+        step = 20 * e.spec.scale
+        moved = eqx.tree_at(e.spec.getter, probe_act,
+                            value.at[e.index].add(step) if value.ndim else value + step)
         dq = ss.simulate(moved, u, dt=rec.dt, stepping=plan) - q0
-        assert float(jnp.max(jnp.abs(dq))) > 1e-10, probe.label
+        assert float(jnp.max(jnp.abs(dq))) > 1e-10, e.probe.label
+        if e.probe.extension is not None:
+            # The strength addressed is this probe's own (in a bank: its element).
+            alone = base.with_extension(eqx.tree_at(lambda x: getattr(x, e.probe.field),
+                                                    e.probe.extension,
+                                                    jnp.asarray(step)))
+            dq_alone = ss.simulate(alone, u, dt=rec.dt, stepping=plan) - q0
+            np.testing.assert_allclose(dq, dq_alone, rtol=0,
+                                       atol=1e-9 * float(jnp.max(jnp.abs(dq))))
+
+
+@pytest.mark.parametrize("cls", [Creep, RateDependentStroke])
+def test_a_bank_is_its_members_side_by_side(saw, cls):
+    """A bank of first-order extensions (the score test's form of several time
+    constants) gives the trace of its members as separate extensions, and at zero gain
+    the same derivative along each member's gain."""
+    rec, u = saw
+    base = ss.lu2015_slc1720()
+    taus, gains = (0.1e-3, 2e-3), (3e-10, -2e-10)
+    plan = ss.plan_steps(base, rec.dt)
+    apart = base.with_extension(cls(gains[0], taus[0])).with_extension(cls(gains[1], taus[1]))
+    bank = base.with_extension(cls.bank([cls(g, t) for g, t in zip(gains, taus)]))
+    assert bank.n_states == apart.n_states == base.n_states + 2
+    q_apart = np.asarray(ss.simulate(apart, u, dt=rec.dt, stepping=plan))
+    q_bank = np.asarray(ss.simulate(bank, u, dt=rec.dt, stepping=plan))
+    assert np.max(np.abs(q_apart - ss.simulate(base, u, dt=rec.dt, stepping=plan))) > 1e-9
+    np.testing.assert_allclose(q_bank, q_apart, rtol=0, atol=1e-12 * np.ptp(q_apart))
+
+    def along(act, getter, direction):
+        return jax.jvp(lambda g: ss.simulate(eqx.tree_at(getter, act, g), u, dt=rec.dt,
+                                             stepping=plan), (getter(act),), (direction,))[1]
+
+    zero_bank = eqx.tree_at(lambda a: a.extensions[0].gain, bank, jnp.zeros(2))
+    for j in range(2):
+        zero_apart = eqx.tree_at(lambda a: (a.extensions[0].gain, a.extensions[1].gain),
+                                 apart, (jnp.asarray(0.0), jnp.asarray(0.0)))
+        d_apart = along(zero_apart, lambda a, j=j: a.extensions[j].gain, jnp.asarray(1e-9))
+        d_bank = along(zero_bank, lambda a: a.extensions[0].gain,
+                       jnp.zeros(2).at[j].set(1e-9))
+        assert np.max(np.abs(d_apart)) > 1e-9
+        np.testing.assert_allclose(d_bank, d_apart, rtol=0,
+                                   atol=1e-10 * float(np.max(np.abs(d_apart))))
+    with pytest.raises(ValueError, match="one length"):
+        cls(jnp.zeros(2), jnp.ones(3))
 
 
 def test_delay_interpolates_between_samples():

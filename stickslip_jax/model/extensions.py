@@ -191,23 +191,39 @@ class ParallelInputs(AbstractInputStage):
 
 
 # ---- extensions ---------------------------------------------------------------------
-class Creep(AbstractExtension):
-    """First-order creep of the piezo stroke: ``τ·ċ = gain·u − c``, stroke += ``c``.
+class _FirstOrder(AbstractExtension):
+    """A first-order state per element of ``gain`` and ``tau`` (scalars, or vectors of
+    one length: a bank whose strokes add, one extension for several time constants,
+    which is what the score test installs, :func:`~stickslip_jax.diagnose.scores.
+    install_probes`; a program's size grows with its extensions, not with a bank's
+    length)."""
 
-    After a voltage change the stroke keeps moving by ``gain·Δu`` with time constant
-    ``τ``. At rest ``c = gain·u``. Attributes: ``gain`` [m/V], ``tau`` [s].
-    """
-
-    gain: Float[Array, ""]
-    tau: Float[Array, ""]
+    gain: Float[Array, "*k"]
+    tau: Float[Array, "*k"]
 
     def __init__(self, gain, tau):
-        self.gain = _f(gain)
-        self.tau = _f(tau)
+        self.gain, self.tau = _f(gain), _f(tau)
+        if self.gain.ndim > 1 or self.gain.shape != self.tau.shape:
+            raise ValueError(f"gain and tau must be scalars or vectors of one length, "
+                             f"got shapes {self.gain.shape} and {self.tau.shape}")
+
+    @classmethod
+    def bank(cls, members):
+        """One extension of the class holding ``members`` (scalar ones) side by side."""
+        return cls(jnp.stack([m.gain for m in members]), jnp.stack([m.tau for m in members]))
 
     @property
     def n_states(self) -> int:
-        return 1
+        return max(1, self.gain.size)
+
+
+class Creep(_FirstOrder):
+    """First-order creep of the piezo stroke: ``τ·ċ = gain·u − c``, stroke += ``c``.
+
+    After a voltage change the stroke keeps moving by ``gain·Δu`` with time constant
+    ``τ``. At rest ``c = gain·u``. Attributes: ``gain`` [m/V], ``tau`` [s] (vectors: a
+    bank, :class:`_FirstOrder`).
+    """
 
     def initial_state(self, u0):
         return jnp.atleast_1d(self.gain * _f(u0))
@@ -216,37 +232,27 @@ class Creep(AbstractExtension):
         return (self.gain * core.u - state) / self.tau
 
     def terms(self, state, core, drive):
-        return ExtensionTerms(stroke=state[0])
+        return ExtensionTerms(stroke=jnp.sum(state))
 
 
-class RateDependentStroke(AbstractExtension):
+class RateDependentStroke(_FirstOrder):
     """Rate-dependent hysteresis, first order: the stroke lags by ``gain·(u − s)``
     where ``s`` follows the voltage with time constant ``τ``, i.e. by
     ``gain·τ·u̇`` for slow changes, saturating for fast ones (the Hammerstein form of
     a rate-dependent Prandtl-Ishlinskii loop: the loop widens with the drive rate).
 
-    Attributes: ``gain`` [m/V] (> 0 widens the loop), ``tau`` [s].
+    Attributes: ``gain`` [m/V] (> 0 widens the loop), ``tau`` [s] (vectors: a bank,
+    :class:`_FirstOrder`).
     """
 
-    gain: Float[Array, ""]
-    tau: Float[Array, ""]
-
-    def __init__(self, gain, tau):
-        self.gain = _f(gain)
-        self.tau = _f(tau)
-
-    @property
-    def n_states(self) -> int:
-        return 1
-
     def initial_state(self, u0):
-        return jnp.atleast_1d(_f(u0))
+        return jnp.broadcast_to(_f(u0), (self.n_states,))
 
     def rate(self, state, core, drive):
         return (core.u - state) / self.tau
 
     def terms(self, state, core, drive):
-        return ExtensionTerms(stroke=-self.gain * (core.u - state[0]))
+        return ExtensionTerms(stroke=-jnp.sum(self.gain * (core.u - state)))
 
 
 class StructuralMode(AbstractExtension):
