@@ -65,7 +65,7 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
         assert float(jnp.max(jnp.abs(dq))) > 1e-10, e.probe.label
         if e.probe.extension is not None:
             # The strength addressed is this probe's own (in a bank: its element).
-            alone = base.with_extension(eqx.tree_at(lambda x: getattr(x, e.probe.field),
+            alone = base.with_extension(eqx.tree_at(lambda x, f=e.probe.field: getattr(x, f),
                                                     e.probe.extension,
                                                     jnp.asarray(step)))
             dq_alone = ss.simulate(alone, u, dt=rec.dt, stepping=plan) - q0
@@ -83,7 +83,7 @@ def test_a_bank_is_its_members_side_by_side(saw, cls):
     taus, gains = (0.1e-3, 2e-3), (3e-10, -2e-10)
     plan = ss.plan_steps(base, rec.dt)
     apart = base.with_extension(cls(gains[0], taus[0])).with_extension(cls(gains[1], taus[1]))
-    bank = base.with_extension(cls.bank([cls(g, t) for g, t in zip(gains, taus)]))
+    bank = base.with_extension(cls.bank([cls(g, t) for g, t in zip(gains, taus, strict=True)]))
     assert bank.n_states == apart.n_states == base.n_states + 2
     q_apart = np.asarray(ss.simulate(apart, u, dt=rec.dt, stepping=plan))
     q_bank = np.asarray(ss.simulate(bank, u, dt=rec.dt, stepping=plan))
