@@ -54,39 +54,31 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate],
     with one extension per probe, issue #27)."""
     entries: list[InstalledProbe] = []
     for cand in candidates:
-        probes = cand.probes(act, hints)
-        banks: dict[tuple, list[Probe]] = {}
-        for probe in probes:
+        # Probes that can share a bank, together (in the order they first appear).
+        groups: dict[object, list[Probe]] = {}
+        for probe in cand.probes(act, hints):
             ext = probe.extension
-            if ext is not None and hasattr(type(ext), "bank"):
-                banks.setdefault((type(ext), probe.field, probe.spec.scale,
-                                  probe.spec.unit), []).append(probe)
-        done: set[int] = set()
-        for probe in probes:
-            if id(probe) in done:
-                continue
+            key = ((type(ext), probe.field, probe.spec.scale, probe.spec.unit)
+                   if ext is not None and hasattr(type(ext), "bank") else id(probe))
+            groups.setdefault(key, []).append(probe)
+        for members in groups.values():
+            probe = members[0]
             try:
                 if probe.extension is not None:
-                    ext = probe.extension
-                    members = banks.get((type(ext), probe.field, probe.spec.scale,
-                                         probe.spec.unit), [probe])
-                    if len(members) > 1:
-                        ext = type(ext).bank([m.extension for m in members])
+                    ext = (type(probe.extension).bank([m.extension for m in members])
+                           if len(members) > 1 else probe.extension)
                     i = len(act.extensions)
                     act = act.with_extension(ext)
                     spec = ParameterSpec(lambda a, i=i, f=probe.field: getattr(a.extensions[i], f),
                                          "linear", probe.spec.scale, probe.spec.unit)
                 else:
-                    members = [probe]
                     act = probe.install(act)
                     spec = probe.spec
             except ValueError:
                 continue  # the slot is taken by an accepted effect
             name = f"probe{len(entries)}"
-            for k, member in enumerate(members):
-                entries.append(InstalledProbe(cand, member, name, spec,
-                                              k if len(members) > 1 else 0))
-                done.add(id(member))
+            entries.extend(InstalledProbe(cand, m, name, spec, k)
+                           for k, m in enumerate(members))
     return act, entries
 
 
