@@ -10,7 +10,7 @@ import pytest
 
 import stickslip_jax as ss
 from stickslip_jax.diagnose import CATALOGUE, NAMES
-from stickslip_jax.diagnose.scores import install_probes
+from stickslip_jax.diagnose.scores import install_probes, probe_batches
 from stickslip_jax.model.extensions import (
     ChainedOutput,
     Creep,
@@ -39,6 +39,31 @@ def test_catalogue_has_the_required_names():
 def saw():
     rec = DriveSpec("sawtooth", 40.0, 500.0, "forward", 0.008).recording()
     return rec, jnp.asarray(rec.voltage_V)
+
+
+def test_probe_batches_split_the_catalogue_in_order_into_the_fewest_even_batches():
+    """The score test's programs: every entry once, in order, never split; as few
+    batches as the limit allows, the largest as small as an entry-wise cut makes it."""
+    base = ss.lu2015_slc1720()
+    hints = {"peaks_Hz": [2500.0], "max_slew_V_s": 1.5e6}
+
+    def quantities(cands):
+        return len({e.name for e in install_probes(base, cands, hints)[1]})
+
+    sizes = [quantities([c]) for c in CATALOGUE]
+    total = sum(sizes)
+    assert total > 6  # the default splits the catalogue
+    for most in (total, 6, 4, 3):
+        batches = probe_batches(base, CATALOGUE, hints, most)
+        assert [c.name for b in batches for c in b] == [c.name for c in CATALOGUE]
+        assert len(batches) == -(-total // most)
+        largest = max(quantities(b) for b in batches)
+        # No cut into the same number of batches has a smaller largest batch.
+        for cut in range(1, len(CATALOGUE)):
+            if len(batches) == 2:
+                assert largest <= max(sum(sizes[:cut]), sum(sizes[cut:]))
+    assert probe_batches(base, CATALOGUE, hints, total) == [list(CATALOGUE)]
+    assert probe_batches(base, CATALOGUE[:1], hints, 1) == [list(CATALOGUE[:1])]
 
 
 def test_every_probe_at_zero_strength_is_the_baseline(saw):

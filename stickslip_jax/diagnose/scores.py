@@ -18,6 +18,7 @@ baseline absorbs what it can), for the probe where that RMS is smallest.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -82,6 +83,36 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate],
     return act, entries
 
 
+MAX_PROBE_QUANTITIES = 6
+"""The score test installs its probes in programs of at most this many probe
+quantities each (an extension, a bank of them or a parameter: one quantity), as
+equal in size as the entries allow (:func:`probe_batches`). The columns are the same
+whichever program holds them; what changes is the compiling: LLVM's time on a
+program's native-loop kernel grows faster than the kernel. The whole catalogue's 11
+quantities in one program compiled in 23, 27 and 29 s; in two of 5 and 6, in 20, 19
+and 23 s together; in three (3, 5, 3), 33 s (each program also compiles the
+simulator once); the second call costs about 0.3 s more (issue #27,
+benchmarks/README.md)."""
+
+
+def probe_batches(act: Actuator, candidates: Sequence[Candidate], hints: dict,
+                  most: int = MAX_PROBE_QUANTITIES) -> list[list[Candidate]]:
+    """``candidates`` in consecutive batches of at most ``most`` probe quantities each
+    where an entry's own allow it (an entry is never split), in as few batches as
+    that takes, cut where the largest batch is smallest (the earliest such cuts)."""
+    sizes = [len({e.name for e in install_probes(act, [c], hints)[1]}) for c in candidates]
+    total = sum(sizes)
+    k = max(1, min(len(sizes), -(-total // most)))
+    best: tuple[int, tuple[int, ...]] | None = None
+    for cuts in itertools.combinations(range(1, len(sizes)), k - 1):
+        bounds = (0, *cuts, len(sizes))
+        largest = max(sum(sizes[a:b]) for a, b in itertools.pairwise(bounds))
+        if best is None or largest < best[0]:
+            best = (largest, bounds)
+    bounds = best[1] if best is not None else (0, len(sizes))
+    return [list(candidates[a:b]) for a, b in itertools.pairwise(bounds)]
+
+
 def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
                      candidates: Sequence[Candidate], hints: dict,
                      base_jacobian: np.ndarray | None = None):
@@ -97,17 +128,24 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
     ``base_jacobian``: ``J_b`` at ``act`` in the coordinates of ``base_names`` around it,
     when a fit ended there with it (the baseline's polish,
     :func:`~.problem.recentred`); then only the probes' columns are simulated."""
-    probe_act, entries = install_probes(act, candidates, hints)
-    specs = {e.name: e.spec for e in entries}
-    names = list(specs) if base_jacobian is not None else base_names + list(specs)
-    program = problem.program(probe_act, names, specs)
-    r, jac = program(np.zeros(program.pmap.size))
-    problem.budget.charge(evaluation_work(problem.samples, jac.shape[1], program.factor))
+    r, base_cols, entries, probe_cols = None, base_jacobian, [], []
+    for batch in probe_batches(act, candidates, hints):
+        probe_act, installed = install_probes(act, batch, hints)
+        specs = {e.name: e.spec for e in installed}
+        with_base = base_cols is None  # the baseline's columns from the first program
+        names = base_names + list(specs) if with_base else list(specs)
+        program = problem.program(probe_act, names, specs)
+        r_batch, jac = program(np.zeros(program.pmap.size))
+        problem.budget.charge(evaluation_work(problem.samples, jac.shape[1],
+                                              program.factor))
+        r = r_batch if r is None else r
+        if with_base:
+            base_cols = jac[:, :program.pmap.size - len(installed)]
+        slices = program.pmap.slices()
+        entries += installed
+        probe_cols += [jac[:, slices[e.name].start + e.index] for e in installed]
+    base_cols = np.asarray(base_cols)
     # The baseline's columns, then one column per probe in the order of ``entries``.
-    slices = program.pmap.slices()
-    base_cols = (np.asarray(base_jacobian) if base_jacobian is not None
-                 else jac[:, :program.pmap.size - len(entries)])
-    probe_cols = [jac[:, slices[e.name].start + e.index] for e in entries]
     jac = np.concatenate([base_cols, np.stack(probe_cols, axis=1)
                           if probe_cols else base_cols[:, :0]], axis=1)
     n_base = base_cols.shape[1]
