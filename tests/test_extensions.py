@@ -57,13 +57,13 @@ def test_probe_batches_split_the_catalogue_in_order_into_the_fewest_even_batches
         batches = probe_batches(base, CATALOGUE, hints, most)
         assert [c.name for b in batches for c in b] == [c.name for c in CATALOGUE]
         assert len(batches) == -(-total // most)
-        largest = max(quantities(b) for b in batches)
-        # No cut into the same number of batches has a smaller largest batch.
-        for cut in range(1, len(CATALOGUE)):
-            if len(batches) == 2:
-                assert largest <= max(sum(sizes[:cut]), sum(sizes[cut:]))
+        if len(batches) == 2:  # no other two-way cut has a smaller largest batch
+            largest = max(quantities(b) for b in batches)
+            assert all(largest <= max(sum(sizes[:c]), sum(sizes[c:]))
+                       for c in range(1, len(sizes)))
     assert probe_batches(base, CATALOGUE, hints, total) == [list(CATALOGUE)]
     assert probe_batches(base, CATALOGUE[:1], hints, 1) == [list(CATALOGUE[:1])]
+    assert probe_batches(base, [], hints) == [[]]
 
 
 def test_every_probe_at_zero_strength_is_the_baseline(saw):

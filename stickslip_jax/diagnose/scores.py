@@ -103,14 +103,14 @@ def probe_batches(act: Actuator, candidates: Sequence[Candidate], hints: dict,
     sizes = [len({e.name for e in install_probes(act, [c], hints)[1]}) for c in candidates]
     total = sum(sizes)
     k = max(1, min(len(sizes), -(-total // most)))
-    best: tuple[int, tuple[int, ...]] | None = None
-    for cuts in itertools.combinations(range(1, len(sizes)), k - 1):
-        bounds = (0, *cuts, len(sizes))
-        largest = max(sum(sizes[a:b]) for a, b in itertools.pairwise(bounds))
-        if best is None or largest < best[0]:
-            best = (largest, bounds)
-    bounds = best[1] if best is not None else (0, len(sizes))
-    return [list(candidates[a:b]) for a, b in itertools.pairwise(bounds)]
+
+    def bounds(cuts: tuple[int, ...]) -> list[tuple[int, int]]:
+        return list(itertools.pairwise((0, *cuts, len(sizes))))
+
+    # min keeps the first of equals: the earliest cuts (combinations come in order).
+    cuts = min(itertools.combinations(range(1, len(sizes)), k - 1),
+               key=lambda c: max(sum(sizes[a:b]) for a, b in bounds(c)))
+    return [list(candidates[a:b]) for a, b in bounds(cuts)]
 
 
 def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
