@@ -48,8 +48,12 @@ def test_a_rough_cost_at_the_optimum_stalls_converged():
         wiggle = jax.lax.stop_gradient(jnp.sin(1e7 * jnp.sum(theta)))
         return a @ theta - b + 0.003 * wiggle * pattern
 
-    # gn_tol far below what the roughness allows: only the stall rule can end it.
-    out = solve_least_squares(rough, jnp.zeros(3), gn_tol=1e-6, initial_damping=1e-3,
+    # gn_tol far below what the roughness allows: only the stall rule can end it. At
+    # 1e-6 (a step of 1e-3 standard errors) a chance can end it instead: a damped step
+    # that lands where the wiggle repeats the last accepted point's to 5e-4 leaves a
+    # Gauss-Newton step of 1e-4 standard errors. Seen on this seed on an AVX-512 machine
+    # after dozens of passing runs elsewhere: 1 of seeds 0-29 there at 1e-6, 0 at 1e-12.
+    out = solve_least_squares(rough, jnp.zeros(3), gn_tol=1e-12, initial_damping=1e-3,
                               max_steps=60)
     assert out.converged and "stalled" in out.message, out.message
     assert out.iterations < 60
