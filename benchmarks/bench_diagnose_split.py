@@ -5,6 +5,8 @@ positives, wrong names, right name first, detection against effect size, time.
         --json out/split_dev.json --figure out/split_dev.png
     .venv/bin/python benchmarks/bench_diagnose_split.py --split test \\
         --json out/split_test.json --figure out/split_test.png     # the frozen split
+    .venv/bin/python benchmarks/bench_diagnose_split.py --split dev --sets 24 \
+        --scale-strength 12 --json out/dev24_x12.json    # an analogue, 12x as strong
 
 Each set is drawn by :func:`stickslip_jax.testing.random_sets.draw_set` from the
 split's seed and its index (``dev``: develop on it; ``test``: frozen, run it once the
@@ -30,6 +32,7 @@ and the confusion matrix.
 """
 
 import argparse
+import dataclasses
 import json
 import re
 import subprocess
@@ -340,10 +343,18 @@ def main() -> None:
     ap.add_argument("--logs", type=Path, nargs="+", default=[],
                     help="the printed output of the runs: rows recorded before rows "
                          "carried the tolerance take it from the '[significance]' line")
+    ap.add_argument("--scale-strength", type=float, default=1.0, metavar="F",
+                    help="development analogues: each drawn set's effect strength times F "
+                         "(its form, truth, noise and recordings' seed as drawn); dev only")
     args = ap.parse_args()
+    if args.scale_strength != 1.0 and (args.split != "dev" or not args.scale_strength > 0):
+        sys.exit("--scale-strength takes a positive factor on the dev split only: the "
+                 "frozen test split is reported as drawn")
     seed = SEEDS[args.split]
     chosen = [int(s) for s in args.sets.split(",") if s] or list(range(args.n))
     meta = {"split": args.split, "seed": seed, "reduced": args.reduced}
+    if args.scale_strength != 1.0:  # (absent otherwise: earlier files stay resumable)
+        meta["strength_scale"] = args.scale_strength
     rows: list[dict] = []
     if args.json and args.json.exists():
         old = json.loads(args.json.read_text())
@@ -364,6 +375,8 @@ def main() -> None:
             print(f"== set_{i:02d}: in {args.json} already", flush=True)
             continue
         spec = rs.draw_set(seed, i)
+        if args.scale_strength != 1.0:
+            spec = dataclasses.replace(spec, strength=spec.strength * args.scale_strength)
         print(f"== {spec.name}", flush=True)
         rows.append(run_one(spec, args.reduced))
         r = rows[-1]
