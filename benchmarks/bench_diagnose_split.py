@@ -5,7 +5,7 @@ positives, wrong names, right name first, detection against effect size, time.
         --json out/split_dev.json --figure out/split_dev.png
     .venv/bin/python benchmarks/bench_diagnose_split.py --split test \\
         --json out/split_test.json --figure out/split_test.png     # the frozen split
-    .venv/bin/python benchmarks/bench_diagnose_split.py --split dev --sets 24 \
+    .venv/bin/python benchmarks/bench_diagnose_split.py --split dev --sets 24 \\
         --scale-strength 12 --json out/dev24_x12.json    # an analogue, 12x as strong
 
 Each set is drawn by :func:`stickslip_jax.testing.random_sets.draw_set` from the
@@ -374,9 +374,8 @@ def main() -> None:
         if i in done:
             print(f"== set_{i:02d}: in {args.json} already", flush=True)
             continue
-        spec = rs.draw_set(seed, i)
-        if args.scale_strength != 1.0:
-            spec = dataclasses.replace(spec, strength=spec.strength * args.scale_strength)
+        spec = rs.draw_set(seed, i)  # times 1.0 unless scaled: exactly the drawn set
+        spec = dataclasses.replace(spec, strength=spec.strength * args.scale_strength)
         print(f"== {spec.name}", flush=True)
         rows.append(run_one(spec, args.reduced))
         r = rows[-1]
