@@ -7,11 +7,13 @@ import pytest
 import stickslip_jax as ss
 from stickslip_jax.diagnose.locate import (
     analyse_recording,
+    harmonic_prominence,
     ljung_box,
     mismatch_entries,
     phase_segments,
     residual_peaks,
 )
+from stickslip_jax.identify.residuals import _psd
 from stickslip_jax.synthetic import DriveSpec
 
 
@@ -32,6 +34,7 @@ def test_pure_noise_is_not_flagged(stepping):
     assert abs(a.z_voltage) < 4 and abs(a.z_rate) < 4
     assert not a.flagged
     assert mismatch_entries([a]) == []
+    assert residual_peaks([rec], [q], [1e-9]) == []
 
 
 def test_a_resonance_is_located_in_frequency(stepping):
@@ -46,6 +49,44 @@ def test_a_resonance_is_located_in_frequency(stepping):
     assert entry["band_Hz"] == [lo, hi] and entry["regime"] == "stepping_forward"
     peaks = residual_peaks([rec], [q + ring], [a.noise_m])
     assert abs(np.log2(peaks[0] / 3000.0)) < 0.1
+
+
+def _periodic_mismatch(t, drive_Hz, amplitude, orders=24):
+    """A mismatch of the periodic response: the drive's harmonics with an envelope
+    falling as 1/k (a sawtooth's) up to the Nyquist frequency (12.5 kHz at 500 Hz),
+    at random phases [m]."""
+    phases = np.random.default_rng(7).uniform(0, 2 * np.pi, orders)
+    return sum(amplitude / k * np.sin(2 * np.pi * k * drive_Hz * t + phases[k - 1])
+               for k in range(1, orders + 1))
+
+
+def test_drive_harmonics_are_no_resonance(stepping):
+    """A periodic mismatch, largest at the 500 Hz drive's first harmonics, is no
+    resonance; a ringing between the harmonics, and one that lifts a harmonic above its
+    neighbours, are found beside it."""
+    rec, q = stepping
+    t = rec.time_s
+    sigma = 1e-9
+    mismatch = _periodic_mismatch(t, 500.0, 20e-9)
+    # Counted as they are, the harmonics are the peaks (the fundamental first).
+    f, psd = _psd(mismatch + (rec.position_m - q), rec.dt, np)
+    level = psd / (sigma**2 * rec.dt)
+    plain = harmonic_prominence(f, level, None)
+    assert np.array_equal(plain, level)
+    k1 = np.argmin(abs(f - 500.0))
+    assert plain[k1] > 100
+    counted = harmonic_prominence(f, level, 500.0)
+    assert counted[k1] == 1.0  # the fundamental: never a peak
+    assert np.all(counted[(f > 900) & (f < 4100)] < 5)  # a falling envelope: no peak
+    assert residual_peaks([rec], [q - mismatch], [sigma]) == []
+    # A ringing between the harmonics is found beside the mismatch.
+    ring = 4e-9 * np.sin(2 * np.pi * 3250.0 * t)
+    (peak,) = residual_peaks([rec], [q - mismatch - ring], [sigma])
+    assert abs(np.log2(peak / 3250.0)) < 0.05
+    # So is a resonance that lifts the 7th harmonic well above its neighbours.
+    lifted = 12e-9 * np.sin(2 * np.pi * 3500.0 * t)
+    (peak,) = residual_peaks([rec], [q - mismatch - lifted], [sigma])
+    assert abs(np.log2(peak / 3500.0)) < 0.05
 
 
 def test_drift_and_edges_are_located_in_time(stepping):

@@ -15,7 +15,8 @@ differences), and tested for structure:
   drive frequency, or below 20 Hz for steps);
 - in frequency: the residual PSD over 1/3-octave bands against the white noise level
   σ²·dt, and the band with the largest excess; peaks shared by several recordings are
-  hints for an unmodelled resonance.
+  hints for an unmodelled resonance (a periodic drive's harmonics counted only by how
+  far each stands above its neighbours: :func:`harmonic_prominence`).
 """
 
 from __future__ import annotations
@@ -185,16 +186,78 @@ def mismatch_entries(analyses: list[RecordingResidual]) -> list[dict]:
     return out
 
 
+HARMONIC_NOISE_Z = 3.0
+"""Standard deviations of the noise's scatter of a harmonic's level (``sqrt(2E)`` in
+noise units at an envelope ``E``: the cross term of a harmonic with the noise) that
+its excess over the envelope must pass to count (:func:`harmonic_prominence`); 3, as
+the tolerance's (:attr:`~.policy.Policy.significance_z`)."""
+
+HARMONIC_CONTEXT_OCTAVES = 0.5
+"""Octaves either side of a drive harmonic whose harmonics make its envelope
+(:func:`harmonic_prominence`): the same half octave that separates two residual peaks,
+narrower than a decade so that the envelope's own slope changes little within it."""
+
+
+def harmonic_prominence(f: np.ndarray, level: np.ndarray,
+                        drive_Hz: float | None) -> np.ndarray:
+    """``level`` (a residual PSD over its noise level, 1 for white noise, at the
+    frequencies ``f`` [Hz] of one recording) with each harmonic ``k·drive_Hz`` of a
+    periodic drive (the bins within one bin of it) counted only by its prominence over
+    the harmonics around it: ``1 + max(level − L − z·sqrt(2L), 0)``. ``L``, the
+    envelope, is the geometric mean of the median peak of the harmonics below it and of
+    those above it, each side within :data:`HARMONIC_CONTEXT_OCTAVES`; ``z·sqrt(2L)``
+    is the noise's scatter of a harmonic at that level (:data:`HARMONIC_NOISE_Z`).
+    Where a side has no harmonic, the noise level 1. ``drive_Hz`` None or 0 (a step,
+    no periodic drive): ``level`` unchanged.
+
+    Whatever the model gets wrong of a periodic response (a friction level, a stroke,
+    a damping: the period's shape) shows at the drive's harmonics, most at the lowest
+    ones, with an envelope that falls smoothly with the order; such peaks say nothing of
+    a resonance, and taken for one they start a mode's probe at the drive frequency (a
+    saturating viscous force, 8x the noise, put the largest residual peaks at the
+    500 Hz drive's first two harmonics, and a mode fitted there took half of the
+    excess). A resonance raises the harmonics near it above the envelope on both sides:
+    that excess is kept. A smooth (power-law) envelope is its own geometric mean of
+    either side, so it leaves little; a harmonic with no neighbour on one side within
+    half an octave (a fast drive's first three) cannot be told from the envelope's
+    edge and counts as noise. The harmonics of a recording of whole periods fall on
+    its bins, so one bin either side holds the Hann window's leakage."""
+    out = np.array(level, dtype=float)
+    if not drive_Hz or f.size < 2:
+        return out
+    df = f[1] - f[0]
+    orders = np.arange(1, int(f[-1] // drive_Hz) + 1)
+    bins = [np.flatnonzero(np.abs(f - k * drive_Hz) <= 1.01 * df) for k in orders]
+    peak = np.array([level[b].max() if b.size else 0.0 for b in bins])
+    span = 2.0**HARMONIC_CONTEXT_OCTAVES
+    for k, b in zip(orders, bins, strict=True):
+        below = peak[(orders < k) & (orders >= k / span)]
+        above = peak[(orders > k) & (orders <= k * span)]
+        if below.size and above.size:
+            envelope = np.sqrt(np.median(below) * np.median(above))
+            # The noise moves a harmonic of level E by about sqrt(2E) (its cross term
+            # with the harmonic): only what stands above that counts.
+            spread = HARMONIC_NOISE_Z * np.sqrt(2.0 * envelope)
+            out[b] = 1.0 + np.maximum(level[b] - envelope - spread, 0.0)
+        else:
+            out[b] = 1.0
+    return out
+
+
 def residual_peaks(recs, q_sims, sigmas, *, band=(300.0, 10_000.0), n_peaks: int = 2):
     """Frequencies [Hz] where the residual PSDs, summed over recordings in units of
     their noise level, peak inside ``band``: candidates for an unmodelled resonance.
-    Peaks are at least a factor 5 over the noise and half an octave apart."""
+    Peaks are at least a factor 5 over the noise and half an octave apart. A periodic
+    drive's harmonics count by their prominence over the neighbouring harmonics
+    (:func:`harmonic_prominence`)."""
     grid = np.geomspace(band[0], band[1], 160)
     total = np.zeros_like(grid)
     for rec, q, s in zip(recs, q_sims, sigmas, strict=True):
         f, psd = _psd(residual_of(rec, q), rec.dt, np)
+        periodic = rec.drive.frequency_Hz if rec.drive.waveform != "step" else None
+        level = harmonic_prominence(f, psd / (s**2 * rec.dt), periodic)
         sel = f > 0
-        total += np.interp(grid, f[sel], psd[sel] / (s**2 * rec.dt), left=0, right=0)
+        total += np.interp(grid, f[sel], level[sel], left=0, right=0)
     total /= max(len(recs), 1)
     peaks = []
     for i in np.argsort(-total):
