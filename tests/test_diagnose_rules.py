@@ -359,6 +359,33 @@ def test_an_entry_is_named_only_when_every_test_holds():
     assert not acceptable_partly(_refitted("creep", 0.6, material=False))
 
 
+def test_a_mode_too_damped_to_ring_is_no_resonance_and_never_named():
+    from stickslip_jax.diagnose.catalogue.structural_mode import MODE_DAMPING_MAX
+    from stickslip_jax.diagnose.rules import acceptable, acceptable_partly, explains
+    from stickslip_jax.diagnose.run import _accept
+
+    mode = candidate("structural_mode")
+    # The ringing decays by e in 1/(2π ζ) cycles: at most one cycle is no ringing.
+    assert MODE_DAMPING_MAX == pytest.approx(1 / (2 * np.pi))
+    ringing = {"mode_frequency": 3300.0, "mode_damping": 0.1, "mode_compliance": 2e-8}
+    assert mode.implausible(ringing) == ""
+    damped = {**ringing, "mode_frequency": 575.0, "mode_damping": 0.44}
+    assert "no ringing" in mode.implausible(damped)
+    # Other entries call any value plausible.
+    assert candidate("creep").implausible({"creep_gain": 1e-9, "creep_tau": 1e-3}) == ""
+    r = _refitted("structural_mode", 0.8)
+    r.implausible = mode.implausible(damped)
+    assert not explains(r) and not acceptable(r) and not acceptable_partly(r)
+    r.adequate = True  # even at the noise level
+    assert not explains(r)
+    # The next refit that explains is named instead; alone, nothing is.
+    other = _refitted("contact_damping", 0.76, delta=-500.0)
+    best = _accept([r, other], Policy(), _significance(), lambda _: None)
+    assert best is other and best.indistinguishable_from == []
+    assert _accept([r], Policy(), _significance(), lambda _: None) is None
+    assert "not the physics" in r.note
+
+
 def test_a_partial_answer_is_kept_when_nothing_explains_and_only_then():
     from stickslip_jax.diagnose.run import _accept
 

@@ -111,6 +111,14 @@ def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     res.note = "" if out.converged else f"refit {out.message}"
 
 
+def judge_plausibility(res: CandidateResult, cand: Candidate, say) -> None:
+    """Set ``res.implausible`` from its refitted values (entry ``cand``), and say it."""
+    res.implausible = cand.implausible(res.params)
+    if res.implausible:
+        res.note = "; ".join(filter(None, [res.note, f"implausible: {res.implausible}"]))
+        say(f"[refit {cand.name}] implausible: {res.implausible}")
+
+
 def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candidate,
           start: Actuator, specs: dict, *, budgeted: bool = True) -> None:
     """Refit ``res`` (entry ``cand``, sized to ``start`` with its ``specs``) with every
@@ -133,6 +141,7 @@ def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candida
         say(f"[refit {cand.name}] {res.note}")
         return
     record_refit(setup, at, res, fitted, out, specs, t0)
+    judge_plausibility(res, cand, say)
     say(f"[budget] {budget.progress()}")
 
 
@@ -188,6 +197,7 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
         res.note = "; ".join(filter(None, [
             "re-identified: the staged identification from the start with the "
             "entry free, then the refit", res.note]))
+        judge_plausibility(res, cand, say)
     else:
         res.wall_s += time.perf_counter() - t0
 

@@ -104,6 +104,10 @@ class CandidateResult:
     predicts: bool = True
     """The refit predicts the regimes left out at least as well as the model it extends
     (:func:`~.holdout.predicts_as_well`); True when not checked."""
+    implausible: str = ""
+    """Why the refitted values are not the physics the entry names, in words; empty
+    when they are (:meth:`~.catalogue.base.CatalogueEntry.implausible`). An implausible
+    refit explains nothing and is never accepted (:mod:`.rules`)."""
     accepted: bool = False
     partial: bool = False
     """Accepted as a partial answer: it removes a share of the excess between

@@ -35,9 +35,11 @@ def rank_value(r: CandidateResult) -> float:
 def explains(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
     """The refit removes :attr:`~.Policy.explained_min` of the excess or leaves a
     residual within the tolerance of the noise (:attr:`~.CandidateResult.adequate`,
-    :mod:`.significance`)."""
-    return (bool(np.isfinite(r.explained) and r.explained >= policy.explained_min)
-            or r.adequate)
+    :mod:`.significance`), with values the entry calls plausible
+    (:attr:`~.CandidateResult.implausible` empty)."""
+    return not r.implausible and (
+        bool(np.isfinite(r.explained) and r.explained >= policy.explained_min)
+        or r.adequate)
 
 
 def acceptable(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
@@ -53,20 +55,23 @@ def acceptable(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
 def acceptable_partly(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
     """The refit would be accepted as a partial answer: every test of :func:`acceptable`
     but the share, and it removes at least :attr:`~.Policy.partial_min` of the excess
-    (most of it) without reaching :attr:`~.Policy.explained_min`."""
-    return (r.criterion_delta < policy.bic_min and r.material and r.predicts
-            and bool(np.isfinite(r.explained)) and r.explained >= policy.partial_min)
+    (most of it) without reaching :attr:`~.Policy.explained_min`, with values the entry
+    calls plausible."""
+    return (not r.implausible and r.criterion_delta < policy.bic_min and r.material
+            and r.predicts and bool(np.isfinite(r.explained))
+            and r.explained >= policy.partial_min)
 
 
 def indistinguishable(rival: CandidateResult, best: CandidateResult,
                       significance: Significance,
                       policy: Policy = DEFAULT_POLICY) -> bool:
-    """``rival``'s refit is accepted-grade (ΔBIC below :attr:`~.Policy.bic_min`) and
+    """``rival``'s refit is accepted-grade (ΔBIC below :attr:`~.Policy.bic_min`, its
+    values plausible) and
     its cost exceeds ``best``'s by no more than the tolerance (not
     :meth:`~.significance.Significance.material`): the data cannot tell the two fits
     apart. (A share of the best ΔBIC, the former test, called an entry that left five
     times the best's residual indistinguishable wherever the effect was strong.)"""
-    return (rival.criterion_delta < policy.bic_min
+    return (not rival.implausible and rival.criterion_delta < policy.bic_min
             and not significance.material(rival.rss_after, best.rss_after))
 
 

@@ -340,7 +340,9 @@ def _accept(refitted: list[CandidateResult], policy: Policy, significance: Signi
             f"{best.criterion_delta:.1f}, explains {100 * best.explained:.0f} % of the "
             f"excess, removes {best.removed_nm:.3g} nm RMS{held}")
         return best
-    if best.criterion_delta >= policy.bic_min:
+    if best.implausible:
+        why = "its refitted values are not the physics it names"
+    elif best.criterion_delta >= policy.bic_min:
         why = "ΔBIC above the threshold"
     elif not best.predicts:
         why = ("it predicts the regimes left out of its refit worse than the model it "

@@ -76,6 +76,12 @@ class CatalogueEntry(abc.ABC):
         entry, refitted) carries in :attr:`slot`: the component with its refitted
         values, every baseline quantity from ``init``."""
 
+    def implausible(self, params: dict[str, float]) -> str:
+        """Why refitted ``params`` (the names of :meth:`attach`'s specs) are not the
+        physics the entry names, in words; empty when they are (the default: any value
+        its parametrisation reaches)."""
+        return ""
+
     def needs(self, recordings: Sequence) -> str | None:
         """Why the effect cannot show in ``recordings``; None when it can."""
         return None

@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import math
 from typing import final
 
 from ...identify.parameters import ParameterSpec
 from ...model.extensions import StructuralMode
 from .base import CatalogueEntry, Probe
 from .slots import carry_extensions, ext
+
+MODE_DAMPING_MAX = 1.0 / (2.0 * math.pi)
+"""The largest damping ratio [-] of a mode the entry names: its ringing decays by a
+factor e in 1/(2π·ζ) cycles, so above 1/(2π) it dies within one cycle, and what the
+refit found is no resonance ringing after edges (the entry's signature) but a
+heavily damped second-order filter, which can absorb other misfits of the response's
+shape. From the signature's definition, not from a data set."""
 
 
 @final
@@ -34,6 +42,13 @@ class StructuralModeEntry(CatalogueEntry):
                      "mode_damping": ParameterSpec(lambda a: g(a).damping, "log", 1.0, "-"),
                      "mode_compliance": ParameterSpec(lambda a: g(a).compliance, "linear",
                                                       probe.strength_scale(strength), "m/N")}
+
+    def implausible(self, params):
+        zeta = params.get("mode_damping", 0.0)
+        if zeta > MODE_DAMPING_MAX:
+            return (f"damping ratio {zeta:.3g} > 1/(2π): the mode decays within one "
+                    f"cycle, no ringing; not a resonance")
+        return ""
 
     def carry(self, init, fitted):
         return carry_extensions(init, fitted)
