@@ -109,6 +109,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "removed_nm": _finite(c.removed_nm),
             "held_out_cost_by_regime": c.held_out,
             "predicts_regimes_left_out": c.predicts, "material": c.material,
+                "implausible": c.implausible,
                 "nrmse_after": _finite(c.nrmse_after), "accepted": c.accepted,
                 "note": c.note, "wall_s": c.wall_s} for c in rnd] for rnd in d.rounds]
     out = {
