@@ -29,6 +29,7 @@ from scipy import stats
 from ..identify.report import classify_regime
 from ..identify.residuals import _psd
 from ..noise import noise_sigma
+from .policy import DEFAULT_POLICY
 
 LJUNG_BOX_LAGS = 20
 STRUCTURE_CHI2 = 1.10
@@ -186,16 +187,17 @@ def mismatch_entries(analyses: list[RecordingResidual]) -> list[dict]:
     return out
 
 
-HARMONIC_NOISE_Z = 3.0
+HARMONIC_NOISE_Z = DEFAULT_POLICY.significance_z
 """Standard deviations of the noise's scatter of a harmonic's level (``sqrt(2E)`` in
 noise units at an envelope ``E``: the cross term of a harmonic with the noise) that
-its excess over the envelope must pass to count (:func:`harmonic_prominence`); 3, as
-the tolerance's (:attr:`~.policy.Policy.significance_z`)."""
+its excess over the envelope must pass to count (:func:`harmonic_prominence`): the
+tolerance's (:attr:`~.policy.Policy.significance_z`)."""
 
-HARMONIC_CONTEXT_OCTAVES = 0.5
-"""Octaves either side of a drive harmonic whose harmonics make its envelope
-(:func:`harmonic_prominence`): the same half octave that separates two residual peaks,
-narrower than a decade so that the envelope's own slope changes little within it."""
+PEAK_OCTAVES = 0.5
+"""Half an octave: how far apart two residual peaks must be (:func:`residual_peaks`),
+and how far either side of a drive harmonic its envelope's harmonics lie
+(:func:`harmonic_prominence`); narrower than a decade so that the envelope's own slope
+changes little within it."""
 
 
 def harmonic_prominence(f: np.ndarray, level: np.ndarray,
@@ -205,7 +207,7 @@ def harmonic_prominence(f: np.ndarray, level: np.ndarray,
     periodic drive (the bins within one bin of it) counted only by its prominence over
     the harmonics around it: ``1 + max(level − L − z·sqrt(2L), 0)``. ``L``, the
     envelope, is the geometric mean of the median peak of the harmonics below it and of
-    those above it, each side within :data:`HARMONIC_CONTEXT_OCTAVES`; ``z·sqrt(2L)``
+    those above it, each side within :data:`PEAK_OCTAVES`; ``z·sqrt(2L)``
     is the noise's scatter of a harmonic at that level (:data:`HARMONIC_NOISE_Z`).
     Where a side has no harmonic, the noise level 1. ``drive_Hz`` None or 0 (a step,
     no periodic drive): ``level`` unchanged.
@@ -229,7 +231,7 @@ def harmonic_prominence(f: np.ndarray, level: np.ndarray,
     orders = np.arange(1, int(f[-1] // drive_Hz) + 1)
     bins = [np.flatnonzero(np.abs(f - k * drive_Hz) <= 1.01 * df) for k in orders]
     peak = np.array([level[b].max() if b.size else 0.0 for b in bins])
-    span = 2.0**HARMONIC_CONTEXT_OCTAVES
+    span = 2.0**PEAK_OCTAVES
     for k, b in zip(orders, bins, strict=True):
         below = peak[(orders < k) & (orders >= k / span)]
         above = peak[(orders > k) & (orders <= k * span)]
@@ -265,6 +267,6 @@ def residual_peaks(recs, q_sims, sigmas, *, band=(300.0, 10_000.0), n_peaks: int
             break
         if i in (0, grid.size - 1) or total[i] < max(total[i - 1], total[i + 1]):
             continue
-        if all(abs(np.log2(grid[i] / p)) > 0.5 for p in peaks):
+        if all(abs(np.log2(grid[i] / p)) > PEAK_OCTAVES for p in peaks):
             peaks.append(float(grid[i]))
     return peaks
