@@ -624,9 +624,44 @@ def test_an_entry_out_of_reach_is_refitted_when_it_could_rival_an_acceptance():
         r.set_aside(CandidateStatus.OUT_OF_REACH, "out of reach")
     # A reach within the tolerance of the accepted-grade drop: it could end
     # indistinguishable from it, so it gets its refit; the far one does not.
-    assert rivals_in_reach([best, near, far], BASE, tol) == [near]
+    assert rivals_in_reach([best, near, far], BASE, tol, N) == [near]
     best.explained = 0.3  # nothing accepted-grade: no rival to look for
-    assert rivals_in_reach([best, near, far], BASE, tol) == []
+    assert rivals_in_reach([best, near, far], BASE, tol, N) == []
+
+
+def test_a_first_refit_that_cannot_rival_an_acceptance_is_not_spent():
+    """Once a refit would be accepted, a competitive entry's refit is spent only where
+    its sizings let it reach within the tolerance of that drop (it could end
+    indistinguishable) or past it less the ΔBIC penalty of the parameters the accepted
+    one has beyond one (it could be preferred); an unconverged free sizing bounds
+    nothing, and nothing is pruned before a refit would be accepted."""
+    from stickslip_jax.diagnose.rules import cannot_rival, rival_bar
+
+    sig = _significance()
+    tol = sig.tolerance * N
+    drop = 0.9 * EXCESS
+    best = _refitted("drive_bandwidth", 0.9, delta=-drop + 3 * np.log(N))
+    best.rss_after, best.added = BASE - drop, 3
+    assert rival_bar([best], BASE, tol, N) == pytest.approx(drop - tol)
+    near = CandidateResult("stribeck", size_drop=0.5 * drop, size_free_converged=True,
+                           size_drop_free=drop - 0.5 * tol)  # reach 1.5 drop - tol
+    far = CandidateResult("creep", size_drop=0.5 * drop, size_free_converged=True,
+                          size_drop_free=0.7 * drop)  # reach 0.9 drop
+    loose = CandidateResult("external_load", size_drop=0.5 * drop,
+                            size_drop_free=0.6 * drop)  # free sizing unconverged
+    ranked = [best, near, far, loose]
+    assert not cannot_rival(near, ranked, BASE, tol, N)
+    assert cannot_rival(far, ranked, BASE, tol, N)
+    assert not cannot_rival(loose, ranked, BASE, tol, N)
+    # Where the ΔBIC penalty of the accepted refit's extra parameters exceeds the
+    # tolerance, a rival with fewer parameters is preferred a little below its drop.
+    best.added = 3 + int(2 * tol / np.log(N))
+    assert rival_bar(ranked, BASE, tol, N) == pytest.approx(
+        drop - (best.added - 1) * np.log(N))
+    # Nothing that would be accepted yet (a share below the policy's): no bar.
+    best.explained = 0.3
+    assert rival_bar(ranked, BASE, tol, N) is None
+    assert not cannot_rival(far, ranked, BASE, tol, N)
 
 
 def test_an_unconverged_free_sizing_is_carried_on_before_it_bounds_a_refit():

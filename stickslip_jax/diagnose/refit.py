@@ -92,6 +92,7 @@ def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     res.nrmse_before = at.nrmse
     res.nrmse_after = float(problem.nrmse_from_whitened(out.residual).mean())
     res.criterion_delta = rss_new - at.rss + k * np.log(n_obs)
+    res.added = int(k)
     # Share of the excess over the noise; undefined when the residual is already at
     # the noise level (then only the criterion and (e/σ)² speak).
     res.explained = ((at.rss - rss_new) / at.excess

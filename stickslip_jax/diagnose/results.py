@@ -53,11 +53,16 @@ class CandidateStatus(enum.StrEnum):
     OUT_OF_REACH = "out of reach"
     """Sized but not refitted: its sizings bound what its refit could remove below what
     any acceptance needs (:func:`~.rules.refit_reach`)."""
+    CANNOT_RIVAL = "cannot rival"
+    """Sized but not refitted: a refit would be accepted, and this entry's sizings bound
+    what its refit could remove below what it would need to be preferred to it or named
+    indistinguishable from it (:func:`~.rules.cannot_rival`)."""
 
 
 SET_ASIDE = frozenset({CandidateStatus.NOT_SIZED, CandidateStatus.SKIPPED,
                        CandidateStatus.REFIT_FAILED, CandidateStatus.NO_PROMISE,
-                       CandidateStatus.NOT_REFITTED, CandidateStatus.OUT_OF_REACH})
+                       CandidateStatus.NOT_REFITTED, CandidateStatus.OUT_OF_REACH,
+                       CandidateStatus.CANNOT_RIVAL})
 """The statuses of an entry given no further refit in its round."""
 
 
@@ -86,6 +91,8 @@ class CandidateResult:
     nrmse_before: float = np.nan
     nrmse_after: float = np.nan
     criterion_delta: float = np.nan
+    added: int = 0
+    """The parameters the refit added to the model (the ``k`` of its ΔBIC)."""
     explained: float = np.nan
     chi2_after: float = np.nan
     adequate: bool = False

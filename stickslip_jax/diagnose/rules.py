@@ -6,7 +6,9 @@ Each rule reads its thresholds from a :class:`~.policy.Policy` and takes the rou
 first). In a round, the diagnosis applies them in this order (:mod:`.run`):
 
 1. :func:`first_refits`: the leader, and the competitive entries beside it (the leader
-   alone when its sizing already removed nearly all of the excess);
+   alone when its sizing already removed nearly all of the excess); once one of them
+   would be accepted, the next is refitted only when its refit could rival it (not
+   :func:`cannot_rival`);
 2. :func:`fallback_refits`, when no first refit explains the residual (:func:`any_explains`),
    of the entries whose :func:`refit_reach` reaches what an acceptance needs
    (:func:`acceptance_reach`); and, when a refit would then be accepted, the entries
@@ -188,20 +190,55 @@ def unbounded(ranked: list[CandidateResult]) -> list[CandidateResult]:
             and np.isfinite(r.size_drop_free)]
 
 
+def rival_bar(ranked: list[CandidateResult], rss: float, tolerance_rss: float,
+              n_obs: float, policy: Policy = DEFAULT_POLICY) -> float | None:
+    """The least a refit must remove (from ``rss``, the round's start) to matter beside
+    the refits of ``ranked`` that would be accepted, whole or partly: to end
+    :func:`indistinguishable` from one (within ``tolerance_rss`` of its drop) or ahead of
+    it by ΔBIC (its drop less the penalty of the parameters it has beyond one, the
+    least a rival adds). None when no refit would be accepted."""
+    bars = [(rss - r.rss_after) - max(tolerance_rss, (r.added - 1) * np.log(n_obs))
+            for r in ranked if r.refitted
+            and (acceptable(r, policy) or acceptable_partly(r, policy))]
+    return min(bars) if bars else None
+
+
 def rivals_in_reach(ranked: list[CandidateResult], rss: float, tolerance_rss: float,
-                    policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
+                    n_obs: float, policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
     """The entries set aside as out of reach whose refit could still end
-    :func:`indistinguishable` from an acceptance: their :func:`refit_reach` comes
-    within ``tolerance_rss`` of the smallest drop (from ``rss``, the round's start)
-    among the refits that would be accepted, whole or partly. Refitted so that the
-    report names every rival the data cannot tell from the entry it accepts."""
-    drops = [rss - r.rss_after for r in ranked if r.refitted
-             and (acceptable(r, policy) or acceptable_partly(r, policy))]
-    if not drops:
+    :func:`indistinguishable` from an acceptance or ahead of it: their
+    :func:`refit_reach` reaches :func:`rival_bar`. Refitted so that the report names
+    every rival the data cannot tell from the entry it accepts."""
+    bar = rival_bar(ranked, rss, tolerance_rss, n_obs, policy)
+    if bar is None:
         return []
-    bar = min(drops) - tolerance_rss
     return [r for r in ranked if r.status is CandidateStatus.OUT_OF_REACH
             and refit_reach(r) >= bar]
+
+
+def cannot_rival(r: CandidateResult, ranked: list[CandidateResult], rss: float,
+                 tolerance_rss: float, n_obs: float,
+                 policy: Policy = DEFAULT_POLICY) -> bool:
+    """A refit of ``ranked`` would be accepted (:func:`any_explains`) and ``r``'s
+    :func:`refit_reach` falls short of :func:`rival_bar`: its refit could neither be
+    preferred to that acceptance nor named indistinguishable from it, so it would
+    change no decision (a first refit beside the leader, :func:`first_refits`, is then
+    not spent)."""
+    if not any_explains(ranked, policy):
+        return False
+    bar = rival_bar(ranked, rss, tolerance_rss, n_obs, policy)
+    return bar is not None and refit_reach(r) < bar
+
+
+def cannot_rival_note(r: CandidateResult, ranked: list[CandidateResult], rss: float,
+                      tolerance_rss: float, n_obs: float,
+                      policy: Policy = DEFAULT_POLICY) -> str:
+    """The note of an entry set aside because it :func:`cannot_rival`."""
+    bar = rival_bar(ranked, rss, tolerance_rss, n_obs, policy)
+    return (f"not refitted: its sizings bound what a refit could remove by "
+            f"{refit_reach(r):.4g} (held {r.size_drop:.4g}, baseline free to first "
+            f"order {r.size_drop_free:.4g}), below the {bar:.4g} it would need to rival "
+            f"the refit that explained the residual")
 
 
 def any_explains(ranked: list[CandidateResult], policy: Policy = DEFAULT_POLICY) -> bool:

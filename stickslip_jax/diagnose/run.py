@@ -37,25 +37,26 @@ it decides by is a field of its :class:`~.policy.Policy`:
    was identified.
 5. **Refit** (:func:`_refit_round`; the rules in :mod:`.rules`, the refits in
    :mod:`.refit`) the ``top`` by the largest of ``S`` and the sizing's drops, those
-   below the leader only when within :attr:`~.Policy.competitive_share` of it and
-   their sizing did not raise the cost (and, if none of them explains the residual,
-   every other sized entry too: the first-order ranking misleads when the baseline
-   absorbed a large effect; never one whose score and sizing both point the wrong
-   way, nor one whose sizings bound its refit's drop below what any acceptance needs,
-   :func:`~.rules.refit_reach`) from the current optimum, freeing the entry's
-   parameters and every baseline parameter. When the refits that explain the residual
-   all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a seeded entry sized but
-   not refitted gets its refit before one is named (an entry that mimics most of
-   another effect). When the baseline was identified here, its polish divided the
+   below the leader only when within :attr:`~.Policy.competitive_share` of it and their
+   sizing did not raise the cost; once one of them would be accepted, the next only when
+   its sizings let its refit rival that acceptance (:func:`~.rules.cannot_rival`: end
+   indistinguishable from it or ahead of it); and, if none of them explains the
+   residual, every other sized entry too (the first-order ranking misleads when the
+   baseline absorbed a large effect; never one whose score and sizing both point the
+   wrong way, nor one whose sizings bound its refit's drop below what any acceptance
+   needs, :func:`~.rules.refit_reach`); each from the current optimum, freeing the
+   entry's parameters and every baseline parameter. When the refits that explain the
+   residual all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a seeded entry
+   sized but not refitted gets its refit before one is named (an entry that mimics most
+   of another effect). When the baseline was identified here, its polish divided the
    identified cost by :attr:`~.Policy.reidentify_polish_gain` or more, and no refit
-   explains the residual, not even a fallback one, the ``top`` entries showing promise are
-   re-identified: the identification steps before the joint one, from ``init`` with
-   the entry attached (at its refitted or sized values) and free in every step, then
-   the refit. The identification can bend the paper's model to mimic a large effect
-   (an 8 µs sensor delay: Mp 12x off) into a valley a refit from the bent baseline
-   does not leave; a re-identification whose staged steps cost less than the
-   identified baseline before its polish is refitted, and replaces the entry's refit
-   when it ends lower.
+   explains the residual, not even a fallback one, the ``top`` entries showing promise
+   are re-identified: the identification steps before the joint one, from ``init`` with
+   the entry attached (at its refitted or sized values) and free in every step, then the
+   refit. The identification can bend the paper's model to mimic a large effect (an 8 µs
+   sensor delay: Mp 12x off) into a valley a refit from the bent baseline does not
+   leave; a re-identification whose staged steps cost less than the identified baseline
+   before its polish is refitted, and replaces the entry's refit when it ends lower.
 6. **Accept** (:func:`_accept`) by the Bayesian information criterion of the whitened
    residual (known noise level): ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N
    samples). The best entry is accepted when ``ΔBIC <`` :attr:`~.Policy.bic_min`
@@ -110,6 +111,8 @@ from .rules import (
     acceptable_partly,
     acceptance_reach,
     any_explains,
+    cannot_rival,
+    cannot_rival_note,
     explains,
     fallback_refits,
     far_from_noise,
@@ -254,6 +257,30 @@ def _sized_entry(res: CandidateResult, pool: Sequence[Candidate],
     return next(c for c in pool if c.name == res.name), *sized[res.name]
 
 
+def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
+                  ranked: list[CandidateResult], seeded: set[str],
+                  free_sizings: dict[str, FreeSizing]) -> bool:
+    """Set ``res`` aside, before its first refit, when a refit already done would be
+    accepted and ``res``'s cannot rival it (:func:`~.rules.cannot_rival`; a free sizing
+    that stopped short of its optimum is carried on first, as it bounds nothing). A
+    seeded entry waits for the second look when the acceptance stays far from the
+    noise (:func:`~.rules.second_look`): its refit may find the effect the other
+    mimics."""
+    problem, policy = setup.problem, setup.policy
+    n_obs, tolerance_rss = problem.n_obs, problem.significance.tolerance_rss
+    if not any_explains(ranked, policy) or (
+            res.name in seeded and far_from_noise(ranked, n_obs, policy)):
+        return False
+    if unbounded([res]) and res.name in free_sizings:
+        carry_on_free_sizing(problem, res, free_sizings[res.name], at.rss)
+    if not cannot_rival(res, ranked, at.rss, tolerance_rss, n_obs, policy):
+        return False
+    res.set_aside(CandidateStatus.CANNOT_RIVAL,
+                  cannot_rival_note(res, ranked, at.rss, tolerance_rss, n_obs, policy))
+    problem.say(f"[refit {res.name}] {res.note}")
+    return True
+
+
 def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult],
                  pool: Sequence[Candidate], sized: dict, seeded: set[str],
                  free_sizings: dict[str, FreeSizing], *, top: int,
@@ -269,6 +296,8 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
     # The leader-alone rule needs an excess over the noise to take shares of.
     above_noise = at.excess if at.excess > policy.excess_min * n_obs else None
     for res in first_refits(ranked, top, above_noise, policy):
+        if _cannot_rival(setup, at, res, ranked, seeded, free_sizings):
+            continue
         refit(setup, at, res, *_sized_entry(res, pool, sized), budgeted=budgeted_first)
     if not any_explains(ranked, policy):
         # The first-order ranking misleads when the baseline absorbed much of a large
@@ -285,7 +314,7 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
                 carry_on_free_sizing(setup.problem, res, free_sizings[res.name], at.rss)
         for res in fallback_refits(ranked, reach):
             refit(setup, at, res, *_sized_entry(res, pool, sized))
-        for res in rivals_in_reach(ranked, at.rss, tolerance_rss, policy):
+        for res in rivals_in_reach(ranked, at.rss, tolerance_rss, n_obs, policy):
             refit(setup, at, res, *_sized_entry(res, pool, sized))
     if any_explains(ranked, policy) and far_from_noise(ranked, n_obs, policy):
         # A refit explains most of the excess but leaves a residual far above the
