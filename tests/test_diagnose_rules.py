@@ -675,6 +675,11 @@ def test_an_unconverged_free_sizing_is_carried_on_before_it_bounds_a_refit():
     ranked[3].size_drop_free = -0.5 * BASE  # no promise: never refitted, never carried on
     # external_load: no free sizing at all (-inf): nothing to carry on.
     assert [r.name for r in unbounded(ranked)] == ["stribeck"]
+    # Where it stopped, stribeck's bound is already its score (0.05 BASE, above
+    # 2·0.02 − 0.01): carried on, the bound could only rise, so a decision whose bar it
+    # reaches carries nothing on; one above it does.
+    assert unbounded(ranked, 0.05 * BASE) == []
+    assert [r.name for r in unbounded(ranked, 0.06 * BASE)] == ["stribeck"]
     ranked[1].refitted = True
     assert unbounded(ranked) == []
 

@@ -141,6 +141,13 @@ def refit_reach(r: CandidateResult) -> float:
     less than the bound (tests/test_diagnose_rules.py)."""
     if not r.size_free_converged:
         return np.inf
+    return reach_so_far(r)
+
+
+def reach_so_far(r: CandidateResult) -> float:
+    """:func:`refit_reach`'s bound at where ``r``'s free sizing stopped, converged or
+    not: the least the bound can be once it converges, as carrying the sizing on only
+    lowers its cost (raises ``D_free``)."""
     return max(r.score, 2.0 * r.size_drop_free - r.size_drop)
 
 
@@ -179,15 +186,17 @@ def fallback_refits(ranked: list[CandidateResult],
     return [r for r in waiting if r.waiting]
 
 
-def unbounded(ranked: list[CandidateResult]) -> list[CandidateResult]:
+def unbounded(ranked: list[CandidateResult], below: float = np.inf) -> list[CandidateResult]:
     """The entries a fallback refit would take whose free sizing stopped short of its
     optimum (:func:`refit_reach` is then unbounded): carried on first
     (:func:`~.sizing.carry_on_free_sizing`). Not one that stopped
     :attr:`~.results.CandidateResult.size_free_extrapolated`: carried on, it would
-    extrapolate further."""
+    extrapolate further; nor one whose bound where it stopped (:func:`reach_so_far`)
+    already reaches ``below`` (the reach a decision needs): carried on, its bound
+    could only rise."""
     return [r for r in ranked if r.waiting and shows_promise(r)
             and not r.size_free_converged and not r.size_free_extrapolated
-            and np.isfinite(r.size_drop_free)]
+            and np.isfinite(r.size_drop_free) and reach_so_far(r) < below]
 
 
 def rival_bar(ranked: list[CandidateResult], rss: float, tolerance_rss: float,

@@ -121,6 +121,7 @@ from .rules import (
     indistinguishable,
     rank_value,
     reidentify_order,
+    rival_bar,
     rivals_in_reach,
     second_look,
     size_before_polish,
@@ -262,7 +263,8 @@ def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
                   free_sizings: dict[str, FreeSizing]) -> bool:
     """Set ``res`` aside, before its first refit, when a refit already done would be
     accepted and ``res``'s cannot rival it (:func:`~.rules.cannot_rival`; a free sizing
-    that stopped short of its optimum is carried on first, as it bounds nothing). A
+    that stopped short of its optimum is carried on first, as it bounds nothing, unless
+    its bound where it stopped, :func:`~.rules.reach_so_far`, already reaches the bar). A
     seeded entry waits for the second look when the acceptance stays far from the
     noise (:func:`~.rules.second_look`): its refit may find the effect the other
     mimics."""
@@ -271,7 +273,10 @@ def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     if not any_explains(ranked, policy) or (
             res.name in seeded and far_from_noise(ranked, n_obs, policy)):
         return False
-    if unbounded([res]) and res.name in free_sizings:
+    bar = rival_bar(ranked, at.rss, tolerance_rss, n_obs, policy)
+    if bar is None:
+        return False
+    if unbounded([res], bar) and res.name in free_sizings:
         carry_on_free_sizing(problem, res, free_sizings[res.name], at.rss)
     if not cannot_rival(res, ranked, at.rss, tolerance_rss, n_obs, policy):
         return False
@@ -310,7 +315,7 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
         if reach > 0:
             # A free sizing that stopped short of its optimum bounds nothing: carry it
             # on (a few parameters, the compiled program) so that it can.
-            for res in unbounded(ranked):
+            for res in unbounded(ranked, reach):
                 carry_on_free_sizing(setup.problem, res, free_sizings[res.name], at.rss)
         for res in fallback_refits(ranked, reach):
             refit(setup, at, res, *_sized_entry(res, pool, sized))
