@@ -650,9 +650,10 @@ def test_a_first_refit_that_cannot_rival_an_acceptance_is_not_spent():
     loose = CandidateResult("external_load", size_drop=0.5 * drop,
                             size_drop_free=0.6 * drop)  # free sizing unconverged
     ranked = [best, near, far, loose]
-    assert not cannot_rival(near, ranked, BASE, tol, N)
-    assert cannot_rival(far, ranked, BASE, tol, N)
-    assert not cannot_rival(loose, ranked, BASE, tol, N)
+    bar = rival_bar(ranked, BASE, tol, N)
+    assert not cannot_rival(near, bar)
+    assert cannot_rival(far, bar)
+    assert not cannot_rival(loose, bar)
     # Where the ΔBIC penalty of the accepted refit's extra parameters exceeds the
     # tolerance, a rival with fewer parameters is preferred a little below its drop.
     best.added = 3 + int(2 * tol / np.log(N))
@@ -661,7 +662,7 @@ def test_a_first_refit_that_cannot_rival_an_acceptance_is_not_spent():
     # Nothing that would be accepted yet (a share below the policy's): no bar.
     best.explained = 0.3
     assert rival_bar(ranked, BASE, tol, N) is None
-    assert not cannot_rival(far, ranked, BASE, tol, N)
+    assert not cannot_rival(far, None)
 
 
 def test_an_unconverged_free_sizing_is_carried_on_before_it_bounds_a_refit():

@@ -219,31 +219,21 @@ def rivals_in_reach(ranked: list[CandidateResult], rss: float, tolerance_rss: fl
     :func:`refit_reach` reaches :func:`rival_bar`. Refitted so that the report names
     every rival the data cannot tell from the entry it accepts."""
     bar = rival_bar(ranked, rss, tolerance_rss, n_obs, policy)
-    if bar is None:
-        return []
     return [r for r in ranked if r.status is CandidateStatus.OUT_OF_REACH
-            and refit_reach(r) >= bar]
+            and bar is not None and not cannot_rival(r, bar)]
 
 
-def cannot_rival(r: CandidateResult, ranked: list[CandidateResult], rss: float,
-                 tolerance_rss: float, n_obs: float,
-                 policy: Policy = DEFAULT_POLICY) -> bool:
-    """A refit of ``ranked`` would be accepted (:func:`any_explains`) and ``r``'s
-    :func:`refit_reach` falls short of :func:`rival_bar`: its refit could neither be
-    preferred to that acceptance nor named indistinguishable from it, so it would
-    change no decision (a first refit beside the leader, :func:`first_refits`, is then
-    not spent)."""
-    if not any_explains(ranked, policy):
-        return False
-    bar = rival_bar(ranked, rss, tolerance_rss, n_obs, policy)
+def cannot_rival(r: CandidateResult, bar: float | None) -> bool:
+    """``r``'s :func:`refit_reach` falls short of ``bar`` (:func:`rival_bar`; None when
+    no refit would be accepted): its refit could neither be preferred to the
+    acceptance nor named indistinguishable from it, so, once a refit of the round would
+    be accepted (:func:`any_explains`, the caller's test), it would change no decision
+    (a first refit beside the leader, :func:`first_refits`, is then not spent)."""
     return bar is not None and refit_reach(r) < bar
 
 
-def cannot_rival_note(r: CandidateResult, ranked: list[CandidateResult], rss: float,
-                      tolerance_rss: float, n_obs: float,
-                      policy: Policy = DEFAULT_POLICY) -> str:
-    """The note of an entry set aside because it :func:`cannot_rival`."""
-    bar = rival_bar(ranked, rss, tolerance_rss, n_obs, policy)
+def cannot_rival_note(r: CandidateResult, bar: float) -> str:
+    """The note of an entry set aside because it :func:`cannot_rival` ``bar``."""
     return (f"not refitted: its sizings bound what a refit could remove by "
             f"{refit_reach(r):.4g} (held {r.size_drop:.4g}, baseline free to first "
             f"order {r.size_drop_free:.4g}), below the {bar:.4g} it would need to rival "

@@ -278,10 +278,9 @@ def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
         return False
     if unbounded([res], bar) and res.name in free_sizings:
         carry_on_free_sizing(problem, res, free_sizings[res.name], at.rss)
-    if not cannot_rival(res, ranked, at.rss, tolerance_rss, n_obs, policy):
+    if not cannot_rival(res, bar):
         return False
-    res.set_aside(CandidateStatus.CANNOT_RIVAL,
-                  cannot_rival_note(res, ranked, at.rss, tolerance_rss, n_obs, policy))
+    res.set_aside(CandidateStatus.CANNOT_RIVAL, cannot_rival_note(res, bar))
     problem.say(f"[refit {res.name}] {res.note}")
     return True
 
