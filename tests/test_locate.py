@@ -8,6 +8,7 @@ import stickslip_jax as ss
 from stickslip_jax.diagnose.locate import (
     analyse_recording,
     harmonic_prominence,
+    level_on_grid,
     ljung_box,
     mismatch_entries,
     phase_segments,
@@ -87,6 +88,37 @@ def test_drive_harmonics_are_no_resonance(stepping):
     lifted = 12e-9 * np.sin(2 * np.pi * 3500.0 * t)
     (peak,) = residual_peaks([rec], [q - mismatch - lifted], [sigma])
     assert abs(np.log2(peak / 3500.0)) < 0.05
+
+
+def test_a_weak_mode_at_a_slow_drives_harmonics_is_found_in_their_cells():
+    """A weak resonance (3.9 kHz, ζ = 0.05) excited by a 50 Hz sawtooth raises only
+    the drive's harmonics, 50 Hz apart on 10 Hz bins: sampled by interpolation on the
+    peak grid (cells 87 Hz wide there) the grid points fall beside them; binned into
+    the cells that hold them, they make the peak."""
+    rec = DriveSpec("sawtooth", 40.0, 50.0, "forward", 0.1).recording()
+    q = np.asarray(ss.simulate(ss.lu2015_slc1720(), jnp.asarray(rec.voltage_V), dt=rec.dt))
+    rng = np.random.default_rng(3)
+    noise = 1e-9 * rng.standard_normal(q.shape)
+    t, phases = rec.time_s, rng.uniform(0, 2 * np.pi, 250)
+    ratio = 50.0 * np.arange(1, 250) / 3900.0
+    gain = 0.025e-9 / np.sqrt((1 - ratio**2) ** 2 + (0.1 * ratio) ** 2)  # [m]
+    mode = sum(g * np.sin(2 * np.pi * 50.0 * k * t + phases[k])
+               for k, g in enumerate(gain, start=1))
+    assert np.std(mode) < 0.7e-9  # below the noise
+    (peak,) = residual_peaks([rec.with_position_m(q + noise + mode)], [q], [1e-9])
+    assert abs(np.log2(peak / 3900.0)) < 0.05
+    # The cell of each harmonic holds the harmonic's bins' largest level; a cell with
+    # no harmonic, and any cell without a periodic drive, the interpolated level.
+    f = np.arange(0.0, 12_500.0, 10.0)
+    level = np.ones_like(f)
+    level[np.isin(f, [3850.0, 3900.0])] = 30.0
+    grid = np.geomspace(300.0, 10_000.0, 160)
+    binned = level_on_grid(f, level, 50.0, grid)
+    cells = np.searchsorted(np.sqrt(grid[1:] * grid[:-1]), [3850.0, 3900.0])
+    lifted = np.isin(np.arange(grid.size), cells)
+    assert np.all(binned[lifted] == 30.0) and np.all(binned[~lifted] == 1.0)
+    assert np.all(np.abs(np.log(grid[lifted] / 3875.0)) < 0.03)
+    assert np.array_equal(level_on_grid(f, level, None, grid), np.interp(grid, f, level))
 
 
 def test_drift_and_edges_are_located_in_time(stepping):

@@ -246,20 +246,51 @@ def harmonic_prominence(f: np.ndarray, level: np.ndarray,
     return out
 
 
+def level_on_grid(f: np.ndarray, level: np.ndarray, drive_Hz: float | None,
+                  grid: np.ndarray) -> np.ndarray:
+    """``level`` (at the frequencies ``f`` [Hz] of one recording) on the increasing
+    ``grid`` [Hz]: interpolated, except in the grid's cells (edges at the geometric
+    midpoints) that hold a harmonic ``k·drive_Hz`` of a periodic drive, where it is the
+    largest level over the bins within one bin of those harmonics.
+
+    A harmonic of a recording of whole periods is one to three bins wide: sampled by
+    interpolation at a grid point beside it, it would count by its leakage or not at
+    all, so a resonance that lifts a 50 Hz drive's harmonics would show in every
+    recording's spectrum and on no grid point (with 17 recordings, a mode 0.67x the
+    noise in the data: a grid mean of 5.75 raw, 2-4 once counted by prominence, below
+    the threshold). Binned, each harmonic counts once, in its cell. ``drive_Hz`` None
+    or 0: interpolated everywhere."""
+    out = np.interp(grid, f[1:], level[1:], left=0.0, right=0.0)
+    if not drive_Hz or f.size < 2:
+        return out
+    df = f[1] - f[0]
+    edges = np.sqrt(grid[1:] * grid[:-1])
+    half_cell = np.sqrt(grid[1] / grid[0])
+    binned = np.full(grid.size, -np.inf)
+    for k in range(1, int(f[-1] // drive_Hz) + 1):
+        fk = k * drive_Hz
+        if not grid[0] / half_cell <= fk <= grid[-1] * half_cell:
+            continue
+        bins = np.flatnonzero(np.abs(f - fk) <= 1.01 * df)
+        cell = int(np.searchsorted(edges, fk))
+        binned[cell] = max(binned[cell], level[bins].max())
+    return np.where(np.isfinite(binned), binned, out)
+
+
 def residual_peaks(recs, q_sims, sigmas, *, band=(300.0, 10_000.0), n_peaks: int = 2):
-    """Frequencies [Hz] where the residual PSDs, summed over recordings in units of
+    """Frequencies [Hz] where the residual PSDs, averaged over recordings in units of
     their noise level, peak inside ``band``: candidates for an unmodelled resonance.
     Peaks are at least a factor 5 over the noise and half an octave apart. A periodic
     drive's harmonics count by their prominence over the neighbouring harmonics
-    (:func:`harmonic_prominence`)."""
+    (:func:`harmonic_prominence`), each in the grid cell that holds it
+    (:func:`level_on_grid`)."""
     grid = np.geomspace(band[0], band[1], 160)
     total = np.zeros_like(grid)
     for rec, q, s in zip(recs, q_sims, sigmas, strict=True):
         f, psd = _psd(residual_of(rec, q), rec.dt, np)
         periodic = rec.drive.frequency_Hz if rec.drive.waveform != "step" else None
         level = harmonic_prominence(f, psd / (s**2 * rec.dt), periodic)
-        sel = f > 0
-        total += np.interp(grid, f[sel], level[sel], left=0, right=0)
+        total += level_on_grid(f, level, periodic, grid)
     total /= max(len(recs), 1)
     peaks = []
     for i in np.argsort(-total):
