@@ -175,17 +175,26 @@ def _simulated(res: WhitenedResiduals):
 
 
 def recentred(jacobian: np.ndarray, pmap: ParameterMap, theta,
-              specs: dict | None = None) -> np.ndarray:
+              specs: dict | None = None) -> np.ndarray | None:
     """A Jacobian ``∂r/∂θ`` of ``pmap``'s quantities at ``theta``, in the coordinates of
     the same quantities around the actuator there (``θ = 0`` at it, what
     :meth:`Problem.program` of that actuator uses): ``J·V(θ)⁻¹·V₀`` with ``V`` the
     derivatives of the physical values in either coordinates
     (:meth:`~stickslip_jax.identify.parameters.ParameterMap.value_jacobian`), so a
-    fit's last Jacobian serves at its optimum without simulating again."""
+    fit's last Jacobian serves at its optimum without simulating again. None where
+    the change of coordinates is singular or not finite at ``theta``."""
     theta = np.asarray(theta, dtype=float)
     here = ParameterMap.make(pmap.actuator(theta, xp=np), pmap.names, specs)
-    change = np.linalg.solve(pmap.value_jacobian(theta),
-                             here.value_jacobian(np.zeros(here.size)))
+    try:
+        change = np.linalg.solve(pmap.value_jacobian(theta),
+                                 here.value_jacobian(np.zeros(here.size)))
+    except np.linalg.LinAlgError:
+        change = None
+    if change is None or not np.all(np.isfinite(change)):
+        # A coordinate whose transform has flattened (a logit or softplus far into its
+        # tail, a PI weight's sum underflowed) has no direction to carry over: the
+        # caller simulates the Jacobian where it needs one.
+        return None
     return np.asarray(jacobian) @ change
 
 
