@@ -7,6 +7,7 @@ import pytest
 import stickslip_jax as ss
 from stickslip_jax.diagnose.locate import (
     analyse_recording,
+    harmonic_bins,
     harmonic_prominence,
     level_on_grid,
     ljung_box,
@@ -119,6 +120,18 @@ def test_a_weak_mode_at_a_slow_drives_harmonics_is_found_in_their_cells():
     assert np.all(binned[lifted] == 30.0) and np.all(binned[~lifted] == 1.0)
     assert np.all(np.abs(np.log(grid[lifted] / 3875.0)) < 0.03)
     assert np.array_equal(level_on_grid(f, level, None, grid), np.interp(grid, f, level))
+    assert np.array_equal(level_on_grid(f[:1], level[:1], 50.0, grid), np.zeros(grid.size))
+
+
+def test_harmonic_bins_hold_each_harmonic_and_its_leakage_up_to_the_last_frequency():
+    f = np.arange(0.0, 1000.5, 10.0)  # bins 10 Hz apart, to 1 kHz
+    orders, bins = harmonic_bins(f, 50.0)
+    assert np.array_equal(orders, np.arange(1, 21))
+    assert np.array_equal(f[bins[0]], [40.0, 50.0, 60.0])
+    assert np.array_equal(f[bins[-1]], [990.0, 1000.0])  # the last: no bin above
+    orders, bins = harmonic_bins(f, 333.0)  # off the bins: the two within one bin
+    assert np.array_equal(orders, [1, 2, 3])
+    assert [f[b].tolist() for b in bins] == [[330.0, 340.0], [660.0, 670.0], [990.0, 1000.0]]
 
 
 def test_drift_and_edges_are_located_in_time(stepping):

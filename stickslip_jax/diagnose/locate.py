@@ -200,6 +200,17 @@ and how far either side of a drive harmonic its envelope's harmonics lie
 changes little within it."""
 
 
+def harmonic_bins(f: np.ndarray, drive_Hz: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The orders ``k`` (1, 2, ... up to the last frequency of ``f``) of a periodic
+    drive's harmonics ``k·drive_Hz`` [Hz] and, for each, the indices of the bins of the
+    evenly spaced ``f`` [Hz] within one bin of it: a harmonic of a recording of whole
+    periods falls on a bin, and one bin either side holds the Hann window's leakage.
+    Each harmonic below the last frequency has at least its nearest bin."""
+    df = f[1] - f[0]
+    orders = np.arange(1, int(f[-1] // drive_Hz) + 1)
+    return orders, [np.flatnonzero(np.abs(f - k * drive_Hz) <= 1.01 * df) for k in orders]
+
+
 def harmonic_prominence(f: np.ndarray, level: np.ndarray,
                         drive_Hz: float | None) -> np.ndarray:
     """``level`` (a residual PSD over its noise level, 1 for white noise, at the
@@ -223,13 +234,11 @@ def harmonic_prominence(f: np.ndarray, level: np.ndarray,
     either side, so it leaves little; a harmonic with no neighbour on one side within
     half an octave (a fast drive's first three) cannot be told from the envelope's
     edge and counts as noise. The harmonics of a recording of whole periods fall on
-    its bins, so one bin either side holds the Hann window's leakage."""
+    its bins (:func:`harmonic_bins`)."""
     out = np.array(level, dtype=float)
     if not drive_Hz or f.size < 2:
         return out
-    df = f[1] - f[0]
-    orders = np.arange(1, int(f[-1] // drive_Hz) + 1)
-    bins = [np.flatnonzero(np.abs(f - k * drive_Hz) <= 1.01 * df) for k in orders]
+    orders, bins = harmonic_bins(f, drive_Hz)
     peak = np.array([level[b].max() if b.size else 0.0 for b in bins])
     span = 2.0**PEAK_OCTAVES
     for k, b in zip(orders, bins, strict=True):
@@ -259,19 +268,20 @@ def level_on_grid(f: np.ndarray, level: np.ndarray, drive_Hz: float | None,
     recording's spectrum and on no grid point (with 17 recordings, a mode 0.67x the
     noise in the data: a grid mean of 5.75 raw, 2-4 once counted by prominence, below
     the threshold). Binned, each harmonic counts once, in its cell. ``drive_Hz`` None
-    or 0: interpolated everywhere."""
+    or 0: interpolated everywhere. A spectrum of fewer than two frequencies (no
+    level above 0 Hz): 0 everywhere."""
+    if f.size < 2:
+        return np.zeros(grid.size)
     out = np.interp(grid, f[1:], level[1:], left=0.0, right=0.0)
-    if not drive_Hz or f.size < 2:
+    if not drive_Hz:
         return out
-    df = f[1] - f[0]
     edges = np.sqrt(grid[1:] * grid[:-1])
     half_cell = np.sqrt(grid[1] / grid[0])
     binned = np.full(grid.size, -np.inf)
-    for k in range(1, int(f[-1] // drive_Hz) + 1):
+    for k, bins in zip(*harmonic_bins(f, drive_Hz), strict=True):
         fk = k * drive_Hz
         if not grid[0] / half_cell <= fk <= grid[-1] * half_cell:
             continue
-        bins = np.flatnonzero(np.abs(f - fk) <= 1.01 * df)
         cell = int(np.searchsorted(edges, fk))
         binned[cell] = max(binned[cell], level[bins].max())
     return np.where(np.isfinite(binned), binned, out)
