@@ -239,7 +239,7 @@ def harmonic_prominence(f: np.ndarray, level: np.ndarray,
     if not drive_Hz or f.size < 2:
         return out
     orders, bins = harmonic_bins(f, drive_Hz)
-    peak = np.array([level[b].max() if b.size else 0.0 for b in bins])
+    peak = np.array([level[b].max() for b in bins])  # (each holds its nearest bin)
     span = 2.0**PEAK_OCTAVES
     for k, b in zip(orders, bins, strict=True):
         below = peak[(orders < k) & (orders >= k / span)]
