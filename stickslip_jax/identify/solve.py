@@ -44,7 +44,9 @@ class SolveResult:
     Jacobian d residual / d theta at the solution (the last accepted point), which
     the solver computed anyway. ``jacobians`` and ``values``: the evaluations it made,
     a residual with its Jacobian and a residual alone (by the ``value`` program), the
-    work a budget charges.
+    work a budget charges. ``damping``: the Levenberg-Marquardt damping λ it would
+    have taken the next step with (in its scaled coordinates). ``interrupted``: why
+    ``stop_when`` ended it (empty when it did not).
     """
 
     theta: np.ndarray
@@ -59,6 +61,8 @@ class SolveResult:
     jacobian: np.ndarray | None = None
     jacobians: int = 0
     values: int = 0
+    damping: float = float("nan")
+    interrupted: str = ""
 
 
 def jacobian_threads() -> int:
@@ -149,8 +153,29 @@ class LevenbergMarquardtSteps:
     LOW_CUTOFF = 0.01
     HIGH_CONSTANT = 3.5
     LOW_CONSTANT = 0.25
+    DAMPING_UPDATES = ("classical", "nielsen")
+    """How an accepted step changes the damping λ (``damping_update``):
 
-    def __init__(self, y0, *, step_size: float = 1.0, rtol: float = 0.0, atol: float = 0.0):
+    - ``classical``: optimistix's ``ClassicalTrustRegion``: λ/3.5 after a step whose
+      cost fell by at least ``HIGH_CUTOFF`` (99 %) of the linear model's prediction,
+      unchanged otherwise;
+    - ``nielsen``: Nielsen's continuous update (Madsen, Nielsen & Tingleff 2004, eq.
+      3.16): λ·max(1/3, 1 − (2ρ − 1)³) with ρ the actual over the predicted fall, so λ
+      falls (down to a third) after every step with ρ > 1/2 and rises (up to 2x)
+      after a poor one. Along a curved valley, where no step meets the model to 1 %,
+      the classical λ never falls and the steps creep.
+
+    A rejected step raises λ 4x in both (``LOW_CONSTANT``)."""
+
+    def __init__(self, y0, *, step_size: float = 1.0, rtol: float = 0.0, atol: float = 0.0,
+                 damping_update: str = "classical"):
+        if damping_update not in self.DAMPING_UPDATES:
+            raise ValueError(f"damping_update must be one of {self.DAMPING_UPDATES}, "
+                             f"got {damping_update!r}")
+        self.damping_update = damping_update
+        self.gain_ratio = np.nan
+        """ρ of the point last decided: the cost's fall over the fall the linear model
+        predicted (nan for the start)."""
         self.y = np.asarray(y0, dtype=float)
         self.y_eval = self.y.copy()
         self.step_size = float(step_size)
@@ -180,6 +205,8 @@ class LevenbergMarquardtSteps:
         predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y) + self.residual)
                                         ** 2)) - rtr)
         self.predicted_fall = -2.0 * predicted
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self.gain_ratio = cost_diff / predicted if predicted < 0 else np.nan
         return (bool(cost_diff <= self.LOW_CUTOFF * predicted),
                 bool(cost_diff < self.HIGH_CUTOFF * predicted and predicted < 0))
 
@@ -190,7 +217,12 @@ class LevenbergMarquardtSteps:
         here; a rejected point needs no Jacobian (``jac`` None)."""
         value = np.asarray(value, dtype=float)
         accept, good = self.decide(value) if decision is None else decision
-        self.step_size *= (self.HIGH_CONSTANT if good else 1.0) if accept else self.LOW_CONSTANT
+        if not accept:
+            self.step_size *= self.LOW_CONSTANT
+        elif self.damping_update == "classical":
+            self.step_size *= self.HIGH_CONSTANT if good else 1.0
+        elif np.isfinite(self.gain_ratio):  # nielsen (the start has no ratio)
+            self.step_size /= max(1.0 / 3.0, 1.0 - (2.0 * self.gain_ratio - 1.0) ** 3)
         if accept:
             residual = np.zeros_like(value) if self.residual is None else self.residual
             self.terminate = self._cauchy(self.y_eval - self.y, value, value - residual)
@@ -267,7 +299,9 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                         scale_by_jacobian: bool = True, label: str = "fit",
                         echo: Callable[[str], None] | None = None,
                         jacobian: Callable | None = None,
-                        value: Callable | None = None) -> SolveResult:
+                        value: Callable | None = None,
+                        damping_update: str = "classical",
+                        stop_when: Callable[[np.ndarray], str] | None = None) -> SolveResult:
     """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
 
     :class:`LevenbergMarquardtSteps` (optimistix's solver, in numpy) takes the steps;
@@ -330,6 +364,15 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     of one program: the start's and each accepted point's are evaluated by ``value``
     too.
 
+    ``damping_update``: how an accepted step changes the damping
+    (:attr:`LevenbergMarquardtSteps.DAMPING_UPDATES`).
+
+    ``stop_when``: ``θ ↦ reason``, asked at each accepted point after the start; a
+    non-empty reason ends the solve there, not converged, with the reason in
+    ``interrupted`` and the damping to go on with in ``damping`` (the caller changes
+    what it evaluates with and continues from ``theta``: the identification re-plans
+    its sub-steps, :func:`~.steps.identify`).
+
     Never raises on failure: the verdict is in the result.
     """
     value_of, value = value, None  # (``value`` below: the residual at a point)
@@ -379,13 +422,15 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     if gn_tol is not None:
         # Only the point test decides (the Cauchy test never passes at 0).
         rtol = atol = ftol = 0.0
-    lm = LevenbergMarquardtSteps(phi0, step_size=1.0 / initial_damping, rtol=rtol, atol=atol)
+    lm = LevenbergMarquardtSteps(phi0, step_size=1.0 / initial_damping, rtol=rtol, atol=atol,
+                                 damping_update=damping_update)
     costs: list[float] = []  # cost at each accepted point, the start first
     residual_start = None
     jac_accepted = jac  # the Jacobian (in φ) at the last accepted point
     ok, message, n = False, f"not converged: hit max_steps={max_steps}", 0
     distance = np.inf  # the Gauss-Newton test's at the last accepted point [SE²]
     rejected_run = 0  # consecutive rejected steps
+    interrupted = ""
 
     def value_cost(phi) -> tuple[float, np.ndarray]:  # by the value-only program
         counts["values"] += 1
@@ -408,7 +453,8 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                 value, jac = trial, None
         elif n:  # the point this step tries (the start's was evaluated above)
             value, jac = evaluate(lm.y_eval, (theta0, d))
-        if lm.step(value, jac, decision):
+        accepted_now = lm.step(value, jac, decision)
+        if accepted_now:
             jac_accepted, rejected_run = jac, 0
         elif lm.predicted_fall <= np.sum(lm.residual**2) / max(lm.residual.size - phi0.size, 1):
             # Rejected where the model promised less than one noise variance σ̂²: the
@@ -452,6 +498,12 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
             ok, message = True, (f"converged (cost stationary: fell by less than {ftol:.2g} "
                                  f"of itself over {window} accepted steps)")
             break
+        # Last: a point that converged ends the solve as converged.
+        if stop_when is not None and n and accepted_now:
+            interrupted = stop_when(np.asarray(theta0) + lm.y / np.asarray(d))
+            if interrupted:
+                ok, message = False, f"interrupted: {interrupted}"
+                break
     # The last accepted point, its residual, and the Jacobian evaluated with it.
     residual = lm.residual
     jac = np.asarray(jac_accepted) * np.asarray(d)[None, :]
@@ -459,4 +511,5 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     cost_start, cost_end = (costs[0], costs[-1]) if costs else (np.nan, np.nan)
     theta = np.asarray(theta0) + lm.y / np.asarray(d)
     return SolveResult(theta, ok, message, n, wall, cost_start, cost_end, residual_start,
-                       residual, jac, **counts)
+                       residual, jac, **counts, damping=1.0 / lm.step_size,
+                       interrupted=interrupted)

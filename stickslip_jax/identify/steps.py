@@ -203,6 +203,69 @@ class Identification:
         return not blocked and all(s.converged for s in self.steps if s.result is not None)
 
 
+REPLAN_FACTOR = 2
+"""A step re-plans its sub-steps (:func:`_solve_step`) once the model it has reached
+needs at most 1/``REPLAN_FACTOR`` of the sub-steps per sample it runs with. A plan is
+made from a step's start, and a start bent toward a fast mode by the step before (the
+dynamics step on one step response can take the piezo's mass down 3-35x, to a mode at
+27-61 kHz, where 40-50 sub-steps per sample are needed instead of 7-9; the joint step
+on every recording takes it back) would price every later evaluation of the step at
+that many; re-planning costs one more compiled simulation, worth it when what is left
+runs at half the sub-steps or fewer."""
+
+
+def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dataset,
+                rows: list[int], weights: dict, stepping: StepPlan, programs, max_steps: int,
+                say: Callable[[str], None]):
+    """Solve one identification step from ``act`` with ``stepping``, re-planning the
+    sub-steps when the fit reaches a model that needs far fewer
+    (:data:`REPLAN_FACTOR`): the solve is interrupted there and goes on from that point
+    with the new plan and the damping it had, within ``max_steps`` in all. Returns
+    ``(actuator, plan, residuals, evaluator, result)``, the last three of the last
+    segment, the result joined over the segments (steps, time and evaluations summed,
+    the start's cost and residual from the first)."""
+    options = dict(STEP_SOLVE.get(name, {}))
+    parts: list[SolveResult] = []
+    while True:
+        pmap = ParameterMap.make(act, free, extra)
+        res = TraceResiduals.make(pmap, sub, stepping=stepping, **weights)
+        evaluator = StepJacobian(res, programs, rows) if programs is not None else None
+
+        def coarser(theta, pmap=pmap, plan=stepping):
+            need = dataset_plan(pmap.actuator(theta, xp=np), sub)
+            if (need.substeps * REPLAN_FACTOR <= plan.substeps
+                    and dataclasses.replace(need, substeps=plan.substeps) == plan):
+                return (f"the model reached needs {need.substeps} sub-steps per sample, "
+                        f"not {plan.substeps}")
+            return ""
+
+        left = max_steps - sum(p.iterations for p in parts)
+        out = solve_least_squares(res, pmap.zeros(), max_steps=left, label=name, echo=say,
+                                  jacobian=evaluator,
+                                  value=evaluator.value if evaluator is not None else None,
+                                  stop_when=coarser, **options)
+        act = (evaluator.actuator(out.theta) if evaluator is not None
+               else pmap.actuator(jnp.asarray(out.theta)))
+        parts.append(out)
+        if not out.interrupted or out.iterations >= left:
+            break
+        stepping = dataset_plan(act, sub)
+        say(f"[{name}] re-planned: {out.interrupted}; going on with {stepping.substeps}")
+        options["initial_damping"] = out.damping
+    if len(parts) > 1:
+        first, total = parts[0], sum(p.iterations for p in parts)
+        message = (f"not converged: hit max_steps={max_steps}"
+                   if out.interrupted or (not out.converged and total >= max_steps
+                                          and "max_steps" in out.message)
+                   else out.message)
+        out = dataclasses.replace(
+            out, message=f"{message}; re-planned {len(parts) - 1}x",
+            iterations=total, wall_s=sum(p.wall_s for p in parts), cost_start=first.cost_start,
+            residual_start=first.residual_start,
+            jacobians=sum(p.jacobians for p in parts), values=sum(p.values for p in parts))
+    return act, stepping, res, evaluator, out
+
+
 def _is_step(r):
     return r.drive.waveform == "step"
 
@@ -361,17 +424,10 @@ def identify(
             continue
         subset = [data.recordings[b] for b in rows]
         sub = Dataset.from_recordings(subset)
-        pmap = ParameterMap.make(act, free, extra)
-        stepping = kept_finer(dataset_plan(pmap.start, sub), stepping)
-        res = TraceResiduals.make(pmap, sub, stepping=stepping, **weights)
-        evaluator = StepJacobian(res, programs, rows) if programs is not None else None
+        stepping = kept_finer(dataset_plan(act, sub), stepping)
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
-        out = solve_least_squares(res, pmap.zeros(), max_steps=max_steps, label=name,
-                                  echo=say, jacobian=evaluator,
-                                  value=evaluator.value if evaluator is not None else None,
-                                  **STEP_SOLVE.get(name, {}))
-        act = (evaluator.actuator(out.theta) if evaluator is not None
-               else pmap.actuator(jnp.asarray(out.theta)))
+        act, stepping, res, evaluator, out = _solve_step(
+            name, act, free, extra, sub, rows, weights, stepping, programs, max_steps, say)
         # NRMSEs from the residuals the solver evaluated (no extra simulation).
         before = float(res.nrmse_from_residual(out.residual_start).mean())
         after = float(res.nrmse_from_residual(out.residual).mean())
