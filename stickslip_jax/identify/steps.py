@@ -101,7 +101,8 @@ def kept_finer(plan: StepPlan, before: StepPlan | None) -> StepPlan:
     values (a start stiffer than the fit asks for one more sub-step per sample than
     the fitted model) and never decrease from one step to the next, so that the steps
     share one compiled simulation (:mod:`.sensitivities`) and none is coarser than the
-    one before it."""
+    one before it. Within a step they may: :func:`_solve_step` re-plans once the fit
+    has left a start that needed far more."""
     if before is not None and before.substeps >= plan.substeps and \
             dataclasses.replace(before, substeps=plan.substeps) == plan:
         return before
