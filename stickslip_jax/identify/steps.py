@@ -209,7 +209,7 @@ REPLAN_FACTOR = 2
 needs at most 1/``REPLAN_FACTOR`` of the sub-steps per sample it runs with. A plan is
 made from a step's start, and a start bent toward a fast mode by the step before (the
 dynamics step on one step response can take the piezo's mass down 3-35x, to a mode at
-27-61 kHz, where 40-50 sub-steps per sample are needed instead of 7-9; the joint step
+27-61 kHz, where 39-52 sub-steps per sample are needed instead of 7-9; the joint step
 on every recording takes it back) would price every later evaluation of the step at
 that many; re-planning costs one more compiled simulation, worth it when what is left
 runs at half the sub-steps or fewer."""
@@ -253,16 +253,19 @@ def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dat
         stepping = dataset_plan(act, sub)
         say(f"[{name}] re-planned: {out.interrupted}; going on with {stepping.substeps}")
         options["initial_damping"] = out.damping
+    first, total = parts[0], sum(p.iterations for p in parts)
+    # Interrupted at its last step, or its last segment at the steps left: the step's
+    # own cap.
+    message = (f"not converged: hit max_steps={max_steps}"
+               if out.interrupted or (not out.converged and total >= max_steps
+                                      and "max_steps" in out.message)
+               else out.message)
     if len(parts) > 1:
-        first, total = parts[0], sum(p.iterations for p in parts)
-        message = (f"not converged: hit max_steps={max_steps}"
-                   if out.interrupted or (not out.converged and total >= max_steps
-                                          and "max_steps" in out.message)
-                   else out.message)
+        message = f"{message}; re-planned {len(parts) - 1}x"
+    if message != out.message:
         out = dataclasses.replace(
-            out, message=f"{message}; re-planned {len(parts) - 1}x",
-            iterations=total, wall_s=sum(p.wall_s for p in parts), cost_start=first.cost_start,
-            residual_start=first.residual_start,
+            out, message=message, iterations=total, wall_s=sum(p.wall_s for p in parts),
+            cost_start=first.cost_start, residual_start=first.residual_start,
             jacobians=sum(p.jacobians for p in parts), values=sum(p.values for p in parts))
     return act, stepping, res, evaluator, out
 
