@@ -49,6 +49,54 @@ def test_a_fit_is_charged_the_evaluations_it_made():
     assert solve_work(1000, 42, done) < fit_work(1000, 42, done.iterations)
 
 
+def test_an_identification_is_charged_each_stretch_at_the_plan_it_ran_at():
+    """A step that starts at a fast model and re-plans is charged its first stretch at
+    the start's sub-steps and the rest at the re-planned ones, not all at the start's;
+    the final simulation and its step-doubling estimate at the final plan."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from stickslip_jax.diagnose.problem import identification_work
+    from stickslip_jax.identify.steps import PlanSegment
+    from stickslip_jax.model.stages import IdentityInput
+    from stickslip_jax.stepping import StepPlan
+
+    recordings = [SimpleNamespace(name=n, time_s=np.zeros(k))
+                  for n, k in (("step", 500), ("saw", 2000), ("sine", 1500))]
+    data = SimpleNamespace(recordings=recordings, mask=np.ones((3, 2000)))
+    fast, slow = StepPlan(4 * REFERENCE_SUBSTEPS), StepPlan(REFERENCE_SUBSTEPS)
+    dynamics = SimpleNamespace(recordings=["step"], result=SimpleNamespace(theta=np.zeros(3)),
+                               segments=[PlanSegment(fast, 11, 14)])
+    joint = SimpleNamespace(recordings=["step", "saw", "sine"],
+                            result=SimpleNamespace(theta=np.zeros(42)),
+                            segments=[PlanSegment(fast, 3, 4), PlanSegment(slow, 20, 26)])
+    skipped = SimpleNamespace(recordings=[], result=None, segments=[])
+    ident = SimpleNamespace(steps=[dynamics, skipped, joint], plan=slow, uncertainty=object())
+
+    def factor(plan):
+        return plan_factor(plan, IdentityInput())
+
+    work = identification_work(ident, data, factor)
+    expected = (11 * evaluation_work(500, 3, 4.0) + 14 * evaluation_work(500, 0, 4.0)
+                + 3 * evaluation_work(6000, 42, 4.0) + 4 * evaluation_work(6000, 0, 4.0)
+                + 20 * evaluation_work(6000, 42) + 26 * evaluation_work(6000, 0)
+                + evaluation_work(6000, 42) + evaluation_work(6000, 0, 2.0))
+    assert work == pytest.approx(expected)
+    # Charged all at the start's plan, the joint step would cost almost 4x as much.
+    all_fast = (11 * evaluation_work(500, 3, 4.0) + 14 * evaluation_work(500, 0, 4.0)
+                + 23 * evaluation_work(6000, 42, 4.0) + 30 * evaluation_work(6000, 0, 4.0))
+    assert work < 0.4 * all_fast
+    # Without an uncertainty the final simulation carries no Jacobian; without a final
+    # simulation nothing is charged for it.
+    ident.uncertainty = None
+    assert identification_work(ident, data, factor) == pytest.approx(
+        expected - evaluation_work(6000, 42) + evaluation_work(6000, 0))
+    ident.plan = None
+    assert identification_work(ident, data, factor) == pytest.approx(
+        expected - evaluation_work(6000, 42) - evaluation_work(6000, 0, 2.0))
+
+
 def test_the_plan_factor_counts_sub_steps_and_what_a_drive_stage_adds():
     from stickslip_jax.model.extensions import LowPassInput, SlewLimitedInput
     from stickslip_jax.model.stages import IdentityInput

@@ -112,6 +112,8 @@ def test_fixture_fit_writes_params_fit_and_figures(fixture_fit, tmp_path):
                                                        for r in recordings))
     assert [s["name"] for s in fit["steps"]] == ["dynamics", "hysteresis", "friction", "joint"]
     assert all(s["converged"] for s in fit["steps"])
+    # Each step's sub-steps per sample, a stretch at a time (at least one each).
+    assert all(s["substeps"] and min(s["substeps"]) >= 1 for s in fit["steps"])
     assert any("Ms" in n for n in fit["notes"]) is False  # Ms was given, no default note
     for fig in ("step_psd.png", "fig11_psd.png", "hysteresis_loop.png", "step_length.png",
                 "overlay_saw_40V_50Hz_fwd.png"):

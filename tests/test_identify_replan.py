@@ -46,6 +46,14 @@ def test_a_step_leaving_a_fast_start_re_plans_and_ends_where_a_start_at_the_trut
             <= dataset_plan(start, data).substeps)
     # Counted as one step: its iterations and evaluations summed over the segments.
     assert 2 <= joint.result.iterations <= 60 and joint.result.jacobians >= 3
+    # Each stretch records the plan it ran at (what a work budget charges): the start's
+    # first, then the fitted model's.
+    plans = [seg.plan.substeps for seg in joint.segments]
+    assert len(plans) >= 2 and plans[0] == dataset_plan(start, data).substeps
+    assert plans[-1] * identify_steps.REPLAN_FACTOR <= plans[0]
+    assert sum(seg.jacobians for seg in joint.segments) == joint.result.jacobians
+    assert sum(seg.values for seg in joint.segments) == joint.result.values
+    assert replanned.plan is not None
     # The same fit started at the truth (its plan from the start is the one the
     # optimum needs; nothing to re-plan) ends at the same optimum.
     direct = _joint(recordings, truth, truth)

@@ -4,7 +4,7 @@ every simulation it runs is charged to the work budget (:mod:`.budget`)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -392,14 +392,18 @@ HELD_FIRST = ("pi_weights",)
 """Quantities a refit (:meth:`Problem.refit`) holds in its first stage."""
 
 
-def identification_work(ident, data: Dataset, factor: float) -> float:
+def identification_work(ident, data: Dataset, factor: Callable[[StepPlan], float]) -> float:
     """The work of an identification [sample-evaluations]: its steps, from the
     evaluations each made on its recordings (padded to the longest of them) with its
-    free parameters (:func:`~.budget.solve_work`), then its final simulation of every
-    recording, with the last step's Jacobian when it computed an uncertainty; every
-    step at the
-    :func:`~.budget.plan_factor` ``factor`` of its start (each step plans its own
-    sub-steps; the start's is the count known before it runs)."""
+    free parameters (:func:`~.budget.solve_work`), each stretch of a step charged at the
+    plan it ran at (a step plans its sub-steps from its start and re-plans where its
+    fit leaves a fast start: :class:`~stickslip_jax.identify.steps.PlanSegment`); then
+    its final simulation of every recording, with the last step's Jacobian when it
+    computed an uncertainty, and the step-doubling estimate of its numerical error (one
+    simulation at twice the sub-steps), at the plan of that simulation.
+
+    ``factor``: the :func:`~.budget.plan_factor` of a plan for the identified model's
+    drive stage (:meth:`Problem.plan_factor` of the start, bound to it)."""
     lengths = {r.name: len(r.time_s) for r in data.recordings}
     work, last = 0.0, 0
     for st in ident.steps:
@@ -408,6 +412,12 @@ def identification_work(ident, data: Dataset, factor: float) -> float:
         samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
                                            for n in st.recordings)
         last = int(np.size(st.result.theta))
-        work += solve_work(samples, last, st.result, factor)
+        for seg in st.segments:
+            work += (seg.jacobians * evaluation_work(samples, last, factor(seg.plan))
+                     + seg.values * evaluation_work(samples, 0, factor(seg.plan)))
+    if ident.plan is None:
+        return work
     columns = last if ident.uncertainty is not None else 0
-    return work + evaluation_work(int(data.mask.size), columns, factor)
+    final = factor(ident.plan)
+    return (work + evaluation_work(int(data.mask.size), columns, final)
+            + evaluation_work(int(data.mask.size), 0, 2.0 * final))

@@ -179,7 +179,8 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
         entry_init = cand.carry(init, source)  # the entry's slot, refitted
         ident = identify(data.recordings, init=entry_init, fix=fix, steps=staged,
                          extra=specs, max_steps=60, uncertainty=False)
-        budget.charge(identification_work(ident, data, problem.plan_factor(entry_init)))
+        budget.charge(identification_work(
+            ident, data, lambda plan: problem.plan_factor(entry_init, plan)))
         rss_staged = problem.cost_of_output(ident.actuator, ident.q_sim)
     except ValueError as err:
         say(f"[re-identify {cand.name}] not possible: {err}")

@@ -174,7 +174,8 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
         ident = identify(data.recordings, init=init, fix=fix, steps=identify_steps,
                          max_steps=60, echo=say)
         act = ident.actuator
-        budget.charge(identification_work(ident, data, problem.plan_factor(init)))
+        budget.charge(identification_work(ident, data,
+                                          lambda plan: problem.plan_factor(init, plan)))
         notes += [f"Baseline identification, step '{s.name}': {s.result.message}; the "
                   f"polish starts from where it stopped." for s in ident.steps
                   if s.result is not None and not s.converged]

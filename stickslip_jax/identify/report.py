@@ -105,6 +105,8 @@ def fit_summary(result) -> dict:
         "iterations": s.result.iterations if s.result else 0,
         "wall_s": round(s.result.wall_s, 2) if s.result else 0.0,
         "free": list(s.free), "recordings": list(s.recordings),
+        # Coarse sub-steps per sample of each stretch (more than one: re-planned).
+        "substeps": [seg.plan.substeps for seg in s.segments],
         "nrmse_before": None if not np.isfinite(s.nrmse_before) else float(s.nrmse_before),
         "nrmse_after": None if not np.isfinite(s.nrmse_after) else float(s.nrmse_after),
     } for s in result.steps]

@@ -156,6 +156,19 @@ def _requested(actuator: Actuator, also_fit: Sequence[str]) -> list[str]:
     return list(also_fit)
 
 
+@dataclass(frozen=True)
+class PlanSegment:
+    """A stretch of a step's solve that ran at one plan of sub-steps, and the
+    evaluations it made there: what a work budget charges it at
+    (:func:`~stickslip_jax.diagnose.problem.identification_work`)."""
+
+    plan: StepPlan
+    jacobians: int
+    """Residual evaluations with the Jacobian [-]."""
+    values: int
+    """Residual evaluations alone [-]."""
+
+
 @dataclass
 class StepReport:
     """What one step fitted, on which recordings, and how it went."""
@@ -167,6 +180,10 @@ class StepReport:
     nrmse_before: float
     nrmse_after: float
     note: str = ""
+    segments: list[PlanSegment] = field(default_factory=list)
+    """The plans the step ran at, in order (more than one where it re-planned:
+    :func:`_solve_step`), with the evaluations made at each; they add up to
+    ``result.jacobians`` and ``result.values``."""
 
     @property
     def converged(self) -> bool:
@@ -195,6 +212,8 @@ class Identification:
     """Set when the recordings cannot determine a parameter of the steps asked for
     (:func:`~.informative.assess`, judged before fitting): then nothing was fitted.
     A direction not recorded at all is only a note; its break-away is not fitted."""
+    plan: StepPlan | None = None
+    """The plan of sub-steps ``q_sim`` was simulated at (None when nothing was)."""
 
     @property
     def converged(self) -> bool:
@@ -222,11 +241,13 @@ def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dat
     sub-steps when the fit reaches a model that needs far fewer
     (:data:`REPLAN_FACTOR`): the solve is interrupted there and goes on from that point
     with the new plan and the damping it had, within ``max_steps`` in all. Returns
-    ``(actuator, plan, residuals, evaluator, result)``, the last three of the last
-    segment, the result joined over the segments (steps, time and evaluations summed,
-    the start's cost and residual from the first)."""
+    ``(actuator, plan, residuals, evaluator, result, segments)``: ``plan``,
+    ``residuals`` and ``evaluator`` of the last segment, the result joined over the
+    segments (steps, time and evaluations summed, the start's cost and residual from
+    the first), and each segment's plan and evaluations (:class:`PlanSegment`)."""
     options = dict(STEP_SOLVE.get(name, {}))
     parts: list[SolveResult] = []
+    segments: list[PlanSegment] = []
     while True:
         pmap = ParameterMap.make(act, free, extra)
         res = TraceResiduals.make(pmap, sub, stepping=stepping, **weights)
@@ -248,6 +269,7 @@ def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dat
         act = (evaluator.actuator(out.theta) if evaluator is not None
                else pmap.actuator(jnp.asarray(out.theta)))
         parts.append(out)
+        segments.append(PlanSegment(stepping, int(out.jacobians), int(out.values)))
         if not out.interrupted or out.iterations >= left:
             break
         stepping = dataset_plan(act, sub)
@@ -267,7 +289,7 @@ def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dat
             out, message=message, iterations=total, wall_s=sum(p.wall_s for p in parts),
             cost_start=first.cost_start, residual_start=first.residual_start,
             jacobians=sum(p.jacobians for p in parts), values=sum(p.values for p in parts))
-    return act, stepping, res, evaluator, out
+    return act, stepping, res, evaluator, out, segments
 
 
 def _is_step(r):
@@ -430,14 +452,15 @@ def identify(
         sub = Dataset.from_recordings(subset)
         stepping = kept_finer(dataset_plan(act, sub), stepping)
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
-        act, stepping, res, evaluator, out = _solve_step(
+        act, stepping, res, evaluator, out, segments = _solve_step(
             name, act, free, extra, sub, rows, weights, stepping, programs, max_steps, say)
         # NRMSEs from the residuals the solver evaluated (no extra simulation).
         before = float(res.nrmse_from_residual(out.residual_start).mean())
         after = float(res.nrmse_from_residual(out.residual).mean())
         say(f"[{name}] {out.message} after {out.iterations} steps, {out.wall_s:.1f} s; "
             f"NRMSE {100 * before:.3f} % -> {100 * after:.3f} %")
-        reports.append(StepReport(name, [r.name for r in subset], free, out, before, after))
+        reports.append(StepReport(name, [r.name for r in subset], free, out, before, after,
+                                  segments=segments))
         last = (res, out, evaluator)
 
     def simulated(actuator, plan):
@@ -452,7 +475,7 @@ def identify(
         return Identification(act, reports, data, nrmse_per_recording(q_sim, data), None,
                               notes, q_sim, fix, numerical_error(act, data, plan, q_sim,
                                                                  programs=programs),
-                              undetermined=informative)
+                              undetermined=informative, plan=plan)
     # Final evaluation and uncertainty on every recording with every fitted quantity.
     t0 = time.perf_counter()
     q_sim = None
@@ -500,4 +523,4 @@ def identify(
     say(f"[numerics] simulator error at the fit (step doubling): at most "
         f"{numerical.max() * 1e9:.3g} nm RMS per recording")
     return Identification(act, reports, data, nrmse, unc, notes, q_sim, fix, numerical,
-                          loading_curve=curve, undetermined=informative)
+                          loading_curve=curve, undetermined=informative, plan=plan)
