@@ -46,6 +46,7 @@ from stickslip_jax.compilation_cache import (  # noqa: E402
     use_compilation_cache,
 )
 from stickslip_jax.diagnose import Verdict, diagnose  # noqa: E402
+from stickslip_jax.diagnose.report import diagnosis_dict  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
 
@@ -136,6 +137,10 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
         "compilation_cache": str(CACHE_DIR) if CACHE_ON else None,
         "tolerance_chi2": d.significance.get("tolerance_chi2"),
         "detection_limits": d.detection_limits,
+        # Each round's entries (scores, sizings, refits, status) and the counted work:
+        # enough to replay a change of the refit rules on this set offline.
+        "candidates_by_round": diagnosis_dict(d)["candidates_by_round"],
+        "work_budget": d.work,
     }
 
 

@@ -117,6 +117,10 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
     assert {"recording", "regime", "time_s", "band_Hz", "statistic"} <= set(d["mismatch"][0])
     assert isinstance(d["residual_peaks_Hz"], list)
     assert len(d["baseline"]["per_recording"]) == len(recs)
+    # Each entry's record: its status, and the costs a replay of the rules needs.
+    first = {c["name"]: c for c in d["candidates_by_round"][0]}["sensor_delay"]
+    assert first["status"] == "refitted" and first["accepted"] and not first["partial"]
+    assert first["rss_after"] < first["rss_before"] and first["added_parameters"] == 1
     report = (out / "report.md").read_text()
     assert "sensor_delay" in report and (out / "figures" / "residual_map.png").exists()
     # Nothing is replaced without --force; unknown entries are refused.

@@ -103,14 +103,21 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "sizing_drop_baseline_free": _finite(c.size_drop_free),
                 "sizing_baseline_free_move": _finite(c.size_free_reach),
                 "sizing_baseline_free_extrapolated": c.size_free_extrapolated,
-                "refitted": c.refitted,
+                "sizing_baseline_free_converged": c.size_free_converged,
+                "status": c.status, "refitted": c.refitted,
+                # Whitened costs before and after the refit, and the parameters it
+                # added: with the sizings, what a change of the refit rules can be
+                # replayed on without running the diagnosis again.
+                "rss_before": _finite(c.rss_before), "rss_after": _finite(c.rss_after),
+                "added_parameters": c.added,
                 "criterion_delta": _finite(c.criterion_delta),
                 "explained_share_of_excess": _finite(c.explained),
                 "removed_nm": _finite(c.removed_nm),
-            "held_out_cost_by_regime": c.held_out,
-            "predicts_regimes_left_out": c.predicts, "material": c.material,
+                "held_out_cost_by_regime": c.held_out,
+                "predicts_regimes_left_out": c.predicts, "material": c.material,
                 "implausible": c.implausible,
                 "nrmse_after": _finite(c.nrmse_after), "accepted": c.accepted,
+                "partial": c.partial,
                 "note": c.note, "wall_s": c.wall_s} for c in rnd] for rnd in d.rounds]
     out = {
         "baseline": {"nrmse": float(d.nrmse_baseline.mean()),
