@@ -26,8 +26,10 @@ steps makes at most ``s + 1`` evaluations with its Jacobian (the start, then one
 step). Work done is charged from the evaluations the solver counted
 (:func:`solve_work`): one with the Jacobian at the start and at each accepted point,
 one value-only pass at each point tried and at the start (the solver's ``value``
-program; a rejected point gets nothing more). Work to come is estimated before
-it runs from counts alone: samples, free parameters, ``max_steps`` (an upper bound:
+program; a rejected point gets nothing more); an identification's, stretch by stretch
+at the plan each ran (a step plans its sub-steps from its start and re-plans when its
+fit leaves a fast start: :func:`~.problem.identification_work`). Work to come is
+estimated before it runs from counts alone: samples, free parameters, ``max_steps`` (an upper bound:
 the refits the budget guards mostly stop there; a refit's two stages each at
 ``max_steps``, :meth:`~.problem.Problem.refit_estimate`), the plan its start needs.
 These counts do not depend on the machine; they depend on the data only through the
