@@ -187,7 +187,7 @@ def test_fit_json_never_calls_a_zero_or_missing_error_determined():
     fitted = types.SimpleNamespace(converged=True, result=types.SimpleNamespace(
         converged=True, message="ok", iterations=1, wall_s=0.1), name="joint",
         free=["Mp", "z_ba_forward", "pi_weights"], recordings=["sine"], nrmse_before=0.1,
-        nrmse_after=0.01)
+        nrmse_after=0.01, segments=[])
     result = types.SimpleNamespace(
         data=data, q_sim=rec.position_m[None], nrmse=np.array([0.01]), uncertainty=unc,
         numerical_error_m=None, steps=[fitted], converged=True, notes=[], fixed={},
