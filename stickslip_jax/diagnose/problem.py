@@ -230,6 +230,12 @@ class Problem:
         plan = dataset_plan(act, self.data) if plan is None else plan
         return plan_factor(plan, act.input_stage)
 
+    def identification_work(self, ident, start: Actuator) -> float:
+        """:func:`identification_work` of ``ident``, an identification started from
+        ``start`` (whose drive stage it kept), on these data [sample-evaluations]."""
+        return identification_work(ident, self.data,
+                                   lambda plan: self.plan_factor(start, plan))
+
     def evaluation_work(self, act: Actuator, columns: int) -> float:
         """One evaluation of the residual of ``act`` with a Jacobian of ``columns``
         columns [sample-evaluations]."""
@@ -403,7 +409,8 @@ def identification_work(ident, data: Dataset, factor: Callable[[StepPlan], float
     simulation at twice the sub-steps), at the plan of that simulation.
 
     ``factor``: the :func:`~.budget.plan_factor` of a plan for the identified model's
-    drive stage (:meth:`Problem.plan_factor` of the start, bound to it)."""
+    drive stage (:meth:`Problem.identification_work` binds :meth:`Problem.plan_factor`
+    of the start)."""
     lengths = {r.name: len(r.time_s) for r in data.recordings}
     work, last = 0.0, 0
     for st in ident.steps:
@@ -412,9 +419,8 @@ def identification_work(ident, data: Dataset, factor: Callable[[StepPlan], float
         samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
                                            for n in st.recordings)
         last = int(np.size(st.result.theta))
-        for seg in st.segments:
-            work += (seg.jacobians * evaluation_work(samples, last, factor(seg.plan))
-                     + seg.values * evaluation_work(samples, 0, factor(seg.plan)))
+        # A segment counts its evaluations as a solve result does.
+        work += sum(solve_work(samples, last, seg, factor(seg.plan)) for seg in st.segments)
     if ident.plan is None:
         return work
     columns = last if ident.uncertainty is not None else 0

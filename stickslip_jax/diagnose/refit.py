@@ -21,7 +21,7 @@ from .budget import REIDENTIFY_EVALUATIONS
 from .catalogue import Candidate
 from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
-from .problem import Problem, identification_work
+from .problem import Problem
 from .results import CandidateResult, CandidateStatus
 from .significance import per_recording_chi2
 
@@ -179,8 +179,7 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
         entry_init = cand.carry(init, source)  # the entry's slot, refitted
         ident = identify(data.recordings, init=entry_init, fix=fix, steps=staged,
                          extra=specs, max_steps=60, uncertainty=False)
-        budget.charge(identification_work(
-            ident, data, lambda plan: problem.plan_factor(entry_init, plan)))
+        budget.charge(problem.identification_work(ident, entry_init))
         rss_staged = problem.cost_of_output(ident.actuator, ident.q_sim)
     except ValueError as err:
         say(f"[re-identify {cand.name}] not possible: {err}")

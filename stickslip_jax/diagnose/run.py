@@ -103,7 +103,7 @@ from .holdout import held_out_cost
 from .learned import fit_learned
 from .locate import analyse_recording, mismatch_entries, residual_peaks
 from .policy import Policy
-from .problem import Problem, baseline_free, identification_work, recentred
+from .problem import Problem, baseline_free, recentred
 from .refit import RefitSetup, RoundStart, refit, reidentify
 from .results import CandidateResult, CandidateStatus, Diagnosis, Verdict
 from .rules import (
@@ -174,8 +174,7 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
         ident = identify(data.recordings, init=init, fix=fix, steps=identify_steps,
                          max_steps=60, echo=say)
         act = ident.actuator
-        budget.charge(identification_work(ident, data,
-                                          lambda plan: problem.plan_factor(init, plan)))
+        budget.charge(problem.identification_work(ident, init))
         notes += [f"Baseline identification, step '{s.name}': {s.result.message}; the "
                   f"polish starts from where it stopped." for s in ident.steps
                   if s.result is not None and not s.converged]
