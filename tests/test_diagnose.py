@@ -121,10 +121,6 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
     first = {c["name"]: c for c in d["candidates_by_round"][0]}["sensor_delay"]
     assert first["status"] == "refitted" and first["accepted"] and not first["partial"]
     assert first["rss_after"] < first["rss_before"] and first["added_parameters"] == 1
-    # Where the refit started: the cheaper of its two sizings, never above where the
-    # sizing with the baseline held left it.
-    assert first["refit_start_cost"] <= first["rss_before"] - first["sizing_drop"] + 1e-6
-    assert isinstance(first["refit_from_free_sizing"], bool)
     report = (out / "report.md").read_text()
     assert "sensor_delay" in report and (out / "figures" / "residual_map.png").exists()
     # Nothing is replaced without --force; unknown entries are refused.

@@ -1,7 +1,6 @@
 """A refit in two stages (the PI weights held, then everything) ends where one fit of
 everything ends, for less counted work."""
 
-import dataclasses
 from pathlib import Path
 
 import equinox as eqx
@@ -13,14 +12,7 @@ import stickslip_jax as ss
 from stickslip_jax.diagnose import problem as problem_module
 from stickslip_jax.diagnose.budget import Budget
 from stickslip_jax.diagnose.catalogue import candidate
-from stickslip_jax.diagnose.problem import (
-    FIRST_ORDER_REACH,
-    BaselineSpan,
-    Problem,
-    baseline_free,
-    recentred,
-)
-from stickslip_jax.diagnose.sizing import SIZE_STEPS, free_sizing_start, size_with_baseline_free
+from stickslip_jax.diagnose.problem import Problem, baseline_free, recentred
 from stickslip_jax.identify.dataset import Dataset
 from stickslip_jax.identify.parameters import ParameterMap
 from stickslip_jax.noise import noise_sigma
@@ -148,43 +140,3 @@ def test_a_fits_last_jacobian_recentred_is_the_jacobian_around_its_optimum(case)
     flat = theta.copy()
     flat[column] = -800.0
     assert recentred(jac, pmap, flat, entry_specs) is None
-
-
-def test_a_refit_from_its_free_sizing_starts_lower_and_ends_at_the_same_optimum(case):
-    """The entry sized with the baseline held keeps the baseline where it was (here 10 %
-    off in Mp and Dp); sized with the baseline free to first order, the baseline moved
-    by its first-order move starts the refit far lower, and the refit from there ends
-    at the same optimum for less counted work."""
-    recs, attached, entry_specs = case
-    problem = _problem(recs)
-    base_names = baseline_free(attached, problem.data, problem.fix)
-    base = problem.program(attached, base_names, {})
-    _, jac_base = base(base.pmap.zeros())
-    span = BaselineSpan.of(jac_base)
-    entry = problem.program(attached, list(entry_specs), entry_specs)
-    held, held_cost, held_out = problem.fit_from(entry, entry.pmap.zeros(), label="held",
-                                                 max_steps=SIZE_STEPS)
-    free = size_with_baseline_free(problem, "external_load", entry, held_out.theta, span)
-    assert free.move is not None and free.reach == pytest.approx(np.max(np.abs(free.move)))
-    moved = free_sizing_start(problem, free, base_names)
-    assert moved is not None
-    start, start_cost = moved
-    # The dynamics moved back toward the truth (Mp, Dp were 1.1x and 0.9x).
-    truth = ss.load_params(TRUTH)
-    assert abs(float(start.piezo.Mp) / float(truth.piezo.Mp) - 1) < 0.05
-    assert abs(float(start.piezo.Dp) / float(truth.piezo.Dp) - 1) < 0.05
-    assert start_cost < 0.5 * held_cost, (start_cost, held_cost)
-    # No start where the first order was extrapolated.
-    far = dataclasses.replace(free, reach=2 * FIRST_ORDER_REACH)
-    assert far.extrapolated and free_sizing_start(problem, far, base_names) is None
-    names = base_names + list(entry_specs)
-    from_held, from_free = _problem(recs), _problem(recs)
-    _, cost_held, out_held = from_held.refit(held, names, entry_specs, label="held",
-                                             max_steps=40)
-    _, cost_free, out_free = from_free.refit(start, names, entry_specs, label="free",
-                                             max_steps=40, initial_damping=1e-3)
-    assert out_held.converged and out_free.converged
-    assert abs(cost_free - cost_held) < 0.5, (cost_held, cost_free)
-    assert from_free.budget.spent < from_held.budget.spent, (from_free.budget.spent,
-                                                             from_held.budget.spent)
-

@@ -378,7 +378,7 @@ class Problem:
         return np.asarray(r)
 
     def refit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
-              max_steps: int, initial_damping: float = 1.0) -> tuple[Actuator, float, object]:
+              max_steps: int) -> tuple[Actuator, float, object]:
         """:meth:`fit` over ``names`` in two stages: first with the quantities of
         :data:`HELD_FIRST` (the PI weights) held, then everything from there, starting
         nearly Gauss-Newton (initial damping 1e-3).
@@ -388,19 +388,12 @@ class Problem:
         columns (35 of about 47) and a new entry barely moves the loading curve, so the
         steps that carry the entry to its strength are taken at about a third of the
         columns, and the full fit starts next to its optimum (typically 1-4 steps).
-        Returns the second stage's result (its residual and Jacobian at the optimum).
-
-        ``initial_damping``: the first stage's (1e-3 from a start believed close to the
-        optimum: the entry sized with the baseline free to first order and the baseline
-        moved by that move, :func:`~.sizing.free_sizing_start`; on an external load
-        beside dynamics 10 % off, 5 + 5 steps from there against 11 + 4 from the held
-        sizing)."""
+        Returns the second stage's result (its residual and Jacobian at the optimum)."""
         light = [n for n in names if n not in HELD_FIRST]
         if len(light) == len(names):
-            return self.fit(act, names, specs, label=label, max_steps=max_steps,
-                            initial_damping=initial_damping)
+            return self.fit(act, names, specs, label=label, max_steps=max_steps)
         act, _, _ = self.fit(act, light, specs, label=f"{label}, PI weights held",
-                             max_steps=max_steps, initial_damping=initial_damping)
+                             max_steps=max_steps)
         return self.fit(act, names, specs, label=label, max_steps=max_steps,
                         initial_damping=1e-3)
 

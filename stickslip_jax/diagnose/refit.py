@@ -24,7 +24,6 @@ from .policy import DEFAULT_POLICY, Policy
 from .problem import Problem
 from .results import CandidateResult, CandidateStatus
 from .significance import per_recording_chi2
-from .sizing import FreeSizing, free_sizing_start
 
 
 @dataclass(frozen=True)
@@ -122,14 +121,10 @@ def judge_plausibility(res: CandidateResult, cand: Candidate, say) -> None:
 
 
 def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candidate,
-          start: Actuator, specs: dict, *, budgeted: bool = True,
-          free: FreeSizing | None = None) -> None:
+          start: Actuator, specs: dict, *, budgeted: bool = True) -> None:
     """Refit ``res`` (entry ``cand``, sized to ``start`` with its ``specs``) with every
     baseline parameter freed; skipped, and set aside, when ``budgeted`` and its
-    estimated work would pass the budget (keeping ``at.reserve``). ``free``: the
-    entry's sizing with the baseline free to first order; the refit starts there (the
-    baseline moved by its first-order move) when that point costs less than ``start``
-    (:func:`~.sizing.free_sizing_start`)."""
+    estimated work would pass the budget (keeping ``at.reserve``)."""
     problem = setup.problem
     budget, say = problem.budget, problem.say
     need = problem.refit_estimate(start, setup.columns(start, specs), setup.max_steps)
@@ -138,23 +133,10 @@ def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candida
         say(f"[budget] refit {cand.name} {res.note}")
         return
     t0 = time.perf_counter()
-    held_cost = at.rss - res.size_drop
-    moved = free_sizing_start(problem, free, setup.base_names) if free is not None else None
-    if moved is not None:
-        taken = moved[1] < held_cost
-        say(f"[refit {cand.name}] its sizing with the baseline free to first order, the "
-            f"baseline moved by it, costs {moved[1]:.5g} (held sizing {held_cost:.5g}): "
-            f"{'the refit starts there' if taken else 'the refit starts at the held sizing'}")
-        moved = moved if taken else None
-    res.refit_from_free_sizing = moved is not None
-    res.refit_start_cost = held_cost if moved is None else moved[1]
-    if moved is not None:
-        start = moved[0]
     try:
         fitted, _, out = problem.refit(start, setup.base_names + list(specs), specs,
                                        label=f"refit {cand.name}",
-                                       max_steps=setup.max_steps,
-                                       initial_damping=1.0 if moved is None else 1e-3)
+                                       max_steps=setup.max_steps)
     except ValueError as err:  # no valid start (e.g. a PI loop at the edge)
         res.set_aside(CandidateStatus.REFIT_FAILED, f"refit not possible: {err}")
         say(f"[refit {cand.name}] {res.note}")

@@ -85,14 +85,6 @@ class CandidateResult:
     """The largest move [θ] of a baseline coordinate that sizing's cost takes for
     granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
     refitted: bool = False
-    refit_start_cost: float = np.nan
-    """Whitened cost of the point its refit started from [-]: its sizing with the
-    baseline free to first order, the baseline moved by that move, where that costs
-    less than the held sizing (:attr:`refit_from_free_sizing`), else the held sizing
-    (NaN when not refitted)."""
-    refit_from_free_sizing: bool = False
-    """Its refit started from its sizing with the baseline free to first order
-    (:func:`~.sizing.free_sizing_start`)."""
     params: dict = field(default_factory=dict)
     rss_before: float = np.nan
     rss_after: float = np.nan

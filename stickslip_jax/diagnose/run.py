@@ -45,22 +45,18 @@ it decides by is a field of its :class:`~.policy.Policy`:
    baseline absorbed a large effect; never one whose score and sizing both point the
    wrong way, nor one whose sizings bound its refit's drop below what any acceptance
    needs, :func:`~.rules.refit_reach`); each from the current optimum, freeing the
-   entry's parameters and every baseline parameter: from the entry's sizing with the
-   baseline free to first order, the baseline moved by that move, when that point costs
-   less than the held sizing (:func:`~.sizing.free_sizing_start`; its first stage then
-   starts nearly Gauss-Newton), else from the held sizing. When the refits that
-   explain the residual all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a
-   seeded entry sized but not refitted gets its refit before one is named (an entry that
-   mimics most of another effect). When the baseline was identified here, its polish
-   divided the identified cost by :attr:`~.Policy.reidentify_polish_gain` or more, and
-   no refit explains the residual, not even a fallback one, the ``top`` entries showing
-   promise are re-identified: the identification steps before the joint one, from
-   ``init`` with the entry attached (at its refitted or sized values) and free in every
-   step, then the refit. The identification can bend the paper's model to mimic a large
-   effect (an 8 µs sensor delay: Mp 12x off) into a valley a refit from the bent
-   baseline does not leave; a re-identification whose staged steps cost less than the
-   identified baseline before its polish is refitted, and replaces the entry's refit
-   when it ends lower.
+   entry's parameters and every baseline parameter. When the refits that explain the
+   residual all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a seeded entry
+   sized but not refitted gets its refit before one is named (an entry that mimics most
+   of another effect). When the baseline was identified here, its polish divided the
+   identified cost by :attr:`~.Policy.reidentify_polish_gain` or more, and no refit
+   explains the residual, not even a fallback one, the ``top`` entries showing promise
+   are re-identified: the identification steps before the joint one, from ``init`` with
+   the entry attached (at its refitted or sized values) and free in every step, then the
+   refit. The identification can bend the paper's model to mimic a large effect (an 8 µs
+   sensor delay: Mp 12x off) into a valley a refit from the bent baseline does not
+   leave; a re-identification whose staged steps cost less than the identified baseline
+   before its polish is refitted, and replaces the entry's refit when it ends lower.
 6. **Accept** (:func:`_accept`) by the Bayesian information criterion of the whitened
    residual (known noise level): ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N
    samples). The best entry is accepted when ``ΔBIC <`` :attr:`~.Policy.bic_min`
@@ -281,7 +277,7 @@ def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     if bar is None:
         return False
     if unbounded([res], bar) and res.name in free_sizings:
-        carry_on_free_sizing(problem, res, free_sizings, at.rss)
+        carry_on_free_sizing(problem, res, free_sizings[res.name], at.rss)
     if not cannot_rival(res, bar):
         return False
     res.set_aside(CandidateStatus.CANNOT_RIVAL, cannot_rival_note(res, bar))
@@ -306,8 +302,7 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
     for res in first_refits(ranked, top, above_noise, policy):
         if _cannot_rival(setup, at, res, ranked, seeded, free_sizings):
             continue
-        refit(setup, at, res, *_sized_entry(res, pool, sized), budgeted=budgeted_first,
-              free=free_sizings.get(res.name))
+        refit(setup, at, res, *_sized_entry(res, pool, sized), budgeted=budgeted_first)
     if not any_explains(ranked, policy):
         # The first-order ranking misleads when the baseline absorbed much of a large
         # effect (a slew-limited drive ranked below a constant load that mimics part
@@ -320,21 +315,18 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
             # A free sizing that stopped short of its optimum bounds nothing: carry it
             # on (a few parameters, the compiled program) so that it can.
             for res in unbounded(ranked, reach):
-                carry_on_free_sizing(setup.problem, res, free_sizings, at.rss)
+                carry_on_free_sizing(setup.problem, res, free_sizings[res.name], at.rss)
         for res in fallback_refits(ranked, reach):
-            refit(setup, at, res, *_sized_entry(res, pool, sized),
-                  free=free_sizings.get(res.name))
+            refit(setup, at, res, *_sized_entry(res, pool, sized))
         for res in rivals_in_reach(ranked, at.rss, tolerance_rss, n_obs, policy):
-            refit(setup, at, res, *_sized_entry(res, pool, sized),
-                  free=free_sizings.get(res.name))
+            refit(setup, at, res, *_sized_entry(res, pool, sized))
     if any_explains(ranked, policy) and far_from_noise(ranked, n_obs, policy):
         # A refit explains most of the excess but leaves a residual far above the
         # noise: it may mimic an effect whose own entry was never refitted because its
         # first-order ranking is unreliable (a seeded entry); give those their refit
         # before one is named.
         for res in second_look(ranked, seeded):
-            refit(setup, at, res, *_sized_entry(res, pool, sized),
-                  free=free_sizings.get(res.name))
+            refit(setup, at, res, *_sized_entry(res, pool, sized))
     if reidentification is not None:
         rss_identified, init, fix, staged = reidentification
         if (staged and not any_explains(ranked, policy)

@@ -138,9 +138,6 @@ class FreeSizing:
     reach: float
     """The largest move [θ] of a baseline coordinate its cost takes for granted
     (:meth:`~.problem.BaselineSpan.reach` of the residual where it stopped)."""
-    move: np.ndarray | None = None
-    """That move of every baseline coordinate [θ of the baseline's quantities around
-    the round's start] (:meth:`~.problem.BaselineSpan.move`)."""
 
     @property
     def extrapolated(self) -> bool:
@@ -171,41 +168,14 @@ def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, th
     _, cost, out = problem.fit_from(program, theta, max_steps=max_steps, label=label,
                                     project=baseline_span.basis)
     theta = np.asarray(out.theta)
-    move = baseline_span.move(problem.residual_at(program, theta))
-    reach = float(np.max(np.abs(move), initial=0.0))
+    reach = baseline_span.reach(problem.residual_at(program, theta))
     free = FreeSizing(name, program, theta, baseline_span, float(cost),
-                      bool(out.converged), reach, move)
+                      bool(out.converged), reach)
     verdict = ("extrapolated, its drop not counted" if free.extrapolated
                else "within the first order")
     problem.say(f"[{label}] the baseline's first-order move reaches {reach:.3g} (θ; "
                 f"trusted up to {FIRST_ORDER_REACH:g}, a factor e): {verdict}")
     return free
-
-
-def free_sizing_start(problem: Problem, free: FreeSizing,
-                      base_names: list[str]) -> tuple[Actuator, float] | None:
-    """Where a refit can start from ``free``, an entry's sizing with the baseline free
-    to first order: the entry at the free sizing's values and the baseline moved by
-    its first-order move (:attr:`FreeSizing.move`), with its whitened cost (one
-    simulation; not finite where the simulation fails); None when the sizing was
-    extrapolated or the moved baseline is not a valid one (a PI loop folded). The
-    caller starts there when it costs less than the held sizing.
-
-    A refit from the held sizing starts with the baseline where the entry found it;
-    where the baseline had absorbed part of the effect (a drive lag half taken up by
-    the piezo's dynamics), that point can cost more than the round's start, and the
-    refit's first steps only undo what the free sizing already knows."""
-    if free.extrapolated or free.move is None:
-        return None
-    entry_sized = free.program.pmap.actuator(np.asarray(free.theta), xp=np)
-    try:
-        moved = ParameterMap.make(entry_sized, base_names).actuator(
-            np.asarray(free.move), xp=np)
-        ParameterMap.make(moved, base_names)  # the refit must be able to start here
-        cost = problem.evaluate(moved)[0]
-    except ValueError:
-        return None
-    return moved, float(cost)
 
 
 def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> None:
@@ -223,14 +193,12 @@ def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> No
     res.size_free_converged = free.converged
 
 
-def carry_on_free_sizing(problem: Problem, res: CandidateResult,
-                         free_sizings: dict[str, FreeSizing], rss: float) -> None:
-    """Carry ``res``'s free sizing (in ``free_sizings``, which then holds the carried-on
-    one) on (:meth:`FreeSizing.carried_on`) and record it (:func:`record_free_sizing`):
-    a sizing that stopped short of its optimum bounds nothing
-    (:func:`~.rules.refit_reach`)."""
-    free = free_sizings[res.name] = free_sizings[res.name].carried_on(problem)
-    record_free_sizing(res, free, rss)
+def carry_on_free_sizing(problem: Problem, res: CandidateResult, free: FreeSizing,
+                         rss: float) -> None:
+    """Carry ``res``'s free sizing ``free`` on (:meth:`FreeSizing.carried_on`) and
+    record it (:func:`record_free_sizing`): a sizing that stopped short of its optimum
+    bounds nothing (:func:`~.rules.refit_reach`)."""
+    record_free_sizing(res, free.carried_on(problem), rss)
 
 
 def worth_sizing_after_acceptance(chosen: list[CandidateResult], excess: float,
