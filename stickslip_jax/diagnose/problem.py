@@ -18,7 +18,6 @@ from ..identify.residuals import TraceResiduals, dataset_plan, default_batching
 from ..identify.sensitivities import RecordingPrograms, StepJacobian, perturbed_mask
 from ..identify.solve import ColumnSplitJacobian, solve_least_squares
 from ..identify.steps import (
-    GN_DAMPING_UPDATE,
     JOINT_GN_TOL,
     dynamics_names,
     friction_names,
@@ -322,9 +321,7 @@ class Problem:
         JOINT_GN_TOL`: the full Gauss-Newton step from the point is shorter than a
         tenth of a standard error), so that a fit said to converge is at its minimiser
         to a tenth of the errors the data allow, whatever its start; one that is not
-        there after ``max_steps`` says so. Its damping follows Nielsen's update
-        (:data:`~stickslip_jax.identify.steps.GN_DAMPING_UPDATE`), as the joint
-        identification step's. ``initial_damping``: the LM damping at the
+        there after ``max_steps`` says so. ``initial_damping``: the LM damping at the
         start (small for a start near the optimum). ``project``: an orthonormal
         basis (samples × k) whose span is taken out of the residual
         (:class:`ProjectedResiduals`); the cost returned is then the projected one."""
@@ -359,8 +356,7 @@ class Problem:
         out = solve_least_squares(res, jnp.asarray(theta0, dtype=float),
                                   max_steps=max_steps, label=label, gn_tol=JOINT_GN_TOL,
                                   initial_damping=initial_damping, echo=None,
-                                  jacobian=jacobian, value=value,
-                                  damping_update=GN_DAMPING_UPDATE)
+                                  jacobian=jacobian, value=value)
         self.budget.charge(solve_work(self.samples, np.size(out.theta), out,
                                       program.factor))
         fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)
