@@ -35,9 +35,13 @@ def _number(x) -> float:
     return math.nan if x is None else float(x)
 
 
-def sized_entries(record: list[dict]) -> list[CandidateResult]:
+def sized_entries(record: list[dict], unrecorded_converged: bool = True,
+                  ) -> list[CandidateResult]:
     """Round one's sized entries of a recorded row, best rank value first (as the
-    diagnosis ranks them)."""
+    diagnosis ranks them). Rows before the held sizing's convergence was recorded
+    (``sizing_converged``) take ``unrecorded_converged`` for it: True replays them as
+    the rule then read them (every held sizing above the baseline deferred), False as
+    if each had stopped at its step cap."""
     out = []
     for c in record:
         if c["status"] in UNSIZED:
@@ -45,6 +49,7 @@ def sized_entries(record: list[dict]) -> list[CandidateResult]:
         drop_free = c.get("sizing_drop_baseline_free")
         out.append(CandidateResult(
             c["name"], score=float(c["score_statistic"]), size_drop=float(c["sizing_drop"]),
+            size_converged=bool(c.get("sizing_converged", unrecorded_converged)),
             size_drop_free=-math.inf if drop_free is None else float(drop_free),
             size_free_converged=bool(c.get("sizing_baseline_free_converged", False)),
             size_free_reach=_number(c.get("sizing_baseline_free_move"))))
@@ -63,13 +68,15 @@ def round_one_excess(row: dict) -> tuple[float, float] | None:
     return rss - n_obs, n_obs
 
 
-def replay(row: dict, policy: Policy, top: int) -> tuple[list[str], list[str]] | None:
+def replay(row: dict, policy: Policy, top: int, unrecorded_converged: bool = True,
+           ) -> tuple[list[str], list[str]] | None:
     """``(default's first refits, policy's first refits)`` of round one, by name; None
-    for a row without records or whose round one sized nothing."""
+    for a row without records or whose round one sized nothing
+    (``unrecorded_converged``: :func:`sized_entries`)."""
     rounds = row.get("candidates_by_round")
     if not rounds:
         return None
-    ranked = sized_entries(rounds[0])
+    ranked = sized_entries(rounds[0], unrecorded_converged)
     if not ranked:
         return None
     excess = round_one_excess(row)
@@ -88,6 +95,11 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="a Policy field of the replayed policy (repeatable)")
     ap.add_argument("--top", type=int, default=3, help="diagnose()'s top (default 3)")
+    ap.add_argument("--unrecorded-held-sizing", choices=("converged", "unconverged"),
+                    default="converged",
+                    help="rows recorded without the held sizing's convergence: read "
+                         "each as converged (the rule as it was) or as stopped at its "
+                         "step cap")
     args = ap.parse_args()
     fields = {f.name for f in dataclasses.fields(Policy)}
     changes = {}
@@ -100,7 +112,8 @@ def main() -> None:
     changed = seen = 0
     for path in args.json:
         for row in json.loads(path.read_text())["rows"]:
-            got = replay(row, policy, args.top)
+            got = replay(row, policy, args.top,
+                         args.unrecorded_held_sizing == "converged")
             if got is None:
                 continue
             seen += 1

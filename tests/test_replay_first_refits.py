@@ -49,3 +49,18 @@ def test_a_recorded_round_is_replayed_under_the_default_and_another_policy():
     assert alone == ["creep"]
     # Rows without records (before ec4632c) are skipped.
     assert replay.replay({"set": "old", "named": []}, Policy(), top=3) is None
+
+
+def test_a_held_sizing_above_the_baseline_defers_an_entry_only_where_it_converged():
+    replay = _script()
+    row = {"set": "y", "named": ["sensor_delay"], "chi2_before": 1.1,
+           "candidates_by_round": [[
+               _entry("sensor_delay", 2_600, 2_400, 2_600, rss_before=30_000),
+               _entry("drive_bandwidth", 440, -8e5, 2_500, status="not refitted")]]}
+    # Recorded before the held sizing's convergence was: read as converged, the rule as
+    # it was; as stopped at the step cap, its rank value (its free drop) judges it.
+    assert replay.replay(row, Policy(), top=3)[0] == ["sensor_delay"]
+    assert replay.replay(row, Policy(), top=3, unrecorded_converged=False)[0] == [
+        "sensor_delay", "drive_bandwidth"]
+    row["candidates_by_round"][0][1]["sizing_converged"] = False
+    assert replay.replay(row, Policy(), top=3)[0] == ["sensor_delay", "drive_bandwidth"]

@@ -99,7 +99,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "nrmse_after": c.nrmse_after, "criterion_delta": c.criterion_delta}
                for c in d.accepted]
     rounds = [[{"name": c.name, "score_statistic": c.score, "probe": c.probe,
-                "sizing_drop": c.size_drop,
+                "sizing_drop": c.size_drop, "sizing_converged": c.size_converged,
                 "sizing_drop_baseline_free": _finite(c.size_drop_free),
                 "sizing_baseline_free_move": _finite(c.size_free_reach),
                 "sizing_baseline_free_extrapolated": c.size_free_extrapolated,

@@ -76,6 +76,9 @@ class CandidateResult:
     strength: float = 0.0
     size_drop: float = 0.0
     """What the sizing removed from the whitened cost, the baseline held (:mod:`.sizing`)."""
+    size_converged: bool = False
+    """That sizing ended by its Gauss-Newton test (at an optimum of the entry's own
+    parameters), not at its step cap."""
     size_drop_free: float = -np.inf
     """What the sizing removes with the baseline free to first order (never below
     :attr:`size_drop`; ``-inf`` when not computed; :mod:`.sizing`)."""

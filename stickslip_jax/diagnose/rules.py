@@ -94,8 +94,8 @@ def first_refits(ranked: list[CandidateResult], top: int, excess: float | None =
                  policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
     """The entries refitted first: the leader of ``ranked`` (best first) and, among the
     next ``top − 1``, those whose rank value reaches :attr:`~.Policy.competitive_share`
-    of its and whose sizing did not raise the cost (a sizing that ended above the
-    baseline contradicts the score's first-order promise). An entry with the wrong
+    of its and whose held sizing does not contradict the entry
+    (:func:`sizing_contradicts`). An entry with the wrong
     first-order sign whose sizing did not lower the cost either (rank value ≤ 0) has
     shown nothing a refit could build on: never first. The leader alone when its
     sizing already removed nearly all of ``excess`` and clearly more than any other's
@@ -108,7 +108,19 @@ def first_refits(ranked: list[CandidateResult], top: int, excess: float | None =
     lead = rank_value(ranked[0])
     return [ranked[0]] + [r for r in ranked[1:top]
                           if rank_value(r) >= policy.competitive_share * lead
-                          and r.size_drop >= 0]
+                          and not sizing_contradicts(r)]
+
+
+def sizing_contradicts(r: CandidateResult) -> bool:
+    """``r``'s sizing with the baseline held converged (:attr:`~.CandidateResult.
+    size_converged`) at a cost above the baseline's: an optimum of the entry's own
+    parameters worse than no entry, which contradicts the score's first-order promise.
+    One that stopped at its step cap above the baseline (a seeded start far off, which
+    15 steps did not bring down) has shown nothing yet either way: its rank value
+    judges it, as it does the others. (Read from the cost alone, an unconverged sizing
+    decided between two entries that each explained all of the excess by where it
+    happened to stop.)"""
+    return r.size_drop < 0 and r.size_converged
 
 
 NO_PROMISE = ("not refitted: wrong first-order sign, and its sizing raised the cost "
@@ -301,8 +313,8 @@ def why_not_refitted(r: CandidateResult, ranked: list[CandidateResult], top: int
         why = (f"the leader's sizing alone removed "
                f"{100 * promising[0].size_drop / excess:.0f} % of the excess, this "
                f"entry's {100 * r.size_drop / excess:.0f} %")
-    elif r.size_drop < 0:
-        why = "its sizing raised the cost over the baseline's"
+    elif sizing_contradicts(r):
+        why = "its sizing converged above the baseline's cost"
     elif rank_value(r) < policy.competitive_share * rank_value(ranked[0]):
         why = f"ranked below {100 * policy.competitive_share:.0f} % of the leader"
     else:

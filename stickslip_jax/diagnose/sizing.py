@@ -105,9 +105,10 @@ def best_seed(problem: Problem, act: Actuator, base_names: list[str], cand: Cand
 
 def size_best(problem: Problem, name: str, starts):
     """Size an entry from each ``(tag, start, specs)`` of ``starts`` (its own parameters,
-    the baseline held): ``(cost, sized actuator, specs, program, θ)`` of the lowest, or
-    None; ``program`` (:class:`~.problem.FitProgram`) and ``θ`` its fit's coordinates,
-    for :func:`size_with_baseline_free`."""
+    the baseline held): ``(cost, sized actuator, specs, program, θ, converged)`` of the
+    lowest, or None; ``program`` (:class:`~.problem.FitProgram`) and ``θ`` its fit's
+    coordinates, for :func:`size_with_baseline_free`; ``converged``: that fit ended by
+    its Gauss-Newton test, not at :data:`SIZE_STEPS`."""
     best = None
     for tag, start, specs in starts:
         label = f"size {name} ({tag})" if tag else f"size {name}"
@@ -115,7 +116,7 @@ def size_best(problem: Problem, name: str, starts):
         sized, cost, out = problem.fit_from(program, program.pmap.zeros(), label=label,
                                             max_steps=SIZE_STEPS)
         if best is None or cost < best[0]:
-            best = (cost, sized, specs, program, out.theta)
+            best = (cost, sized, specs, program, out.theta, bool(out.converged))
     return best
 
 
@@ -282,8 +283,8 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
         best_sized = size_best(problem, cand.name, starts)
         if best_sized is None:
             continue
-        rss_size, start, specs, program, theta = best_sized
-        res.size_drop = rss - rss_size
+        rss_size, start, specs, program, theta, converged = best_sized
+        res.size_drop, res.size_converged = rss - rss_size, converged
         if baseline_span is not None:
             # The round starts at an optimum, where the residual is (nearly) orthogonal
             # to the span: its projected cost is ``rss``, the reference of both drops.
