@@ -133,7 +133,7 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
 def test_a_polish_or_refit_short_of_its_optimum_is_said(base, tmp_path):
     """A baseline polish and a refit that stop at max_steps are reported (notes in
     diagnosis.json and report.md; the refit's note beside its ΔBIC, an upper bound)."""
-    from stickslip_jax.diagnose.report import diagnosis_dict, report_markdown
+    from stickslip_jax.diagnose.report import _sizing_drops, diagnosis_dict, report_markdown
 
     recs = reduced_set(base, "sensor_delay")[2:7]
     d = diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(),
@@ -144,8 +144,19 @@ def test_a_polish_or_refit_short_of_its_optimum_is_said(base, tmp_path):
     refit = [c for c in d.rounds[0] if c.refitted]
     assert refit, d.rounds
     assert refit[0].note.startswith("refit not converged: hit max_steps=1")
-    md = report_markdown(diagnosis_dict(d), {}, tmp_path)
+    content = diagnosis_dict(d)
+    md = report_markdown(content, {}, tmp_path)
     assert "## Notes" in md and "Baseline polish: not converged" in md
+    # Each sizing says whether it converged; report.md marks a drop whose sizing
+    # stopped at its step cap.
+    rec = content["candidates_by_round"][0][0]
+    assert isinstance(rec["sizing_converged"], bool)
+    held = f"{rec['sizing_drop']:.3g}" + ("" if rec["sizing_converged"] else "†")
+    assert f"| {held}, " in md
+    capped = {**rec, "sizing_converged": False, "sizing_baseline_free_converged": True,
+              "sizing_drop": -908.0, "sizing_drop_baseline_free": 2716.0}
+    assert _sizing_drops(capped) == "-908†, 2.72e+03"
+    assert _sizing_drops({**capped, "status": "scored"}) == ""
 
 
 def _budget_run(base, work_budget):

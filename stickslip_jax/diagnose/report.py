@@ -12,7 +12,7 @@ from ..identify.residuals import _psd
 from ..plots import subplots
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
-from .results import Diagnosis
+from .results import CandidateStatus, Diagnosis
 
 
 def criterion_text(policy: Policy = DEFAULT_POLICY) -> str:
@@ -75,9 +75,28 @@ def _per_recording(nrmse, analyses, numerical=None) -> list[dict]:
     return rows
 
 
+UNCONVERGED_MARK = "†"
+"""Marks, in report.md, a sizing's drop where that sizing stopped at its step cap."""
+
+
+def _sizing_drops(c: dict) -> str:
+    """An entry's sizing drops for report.md, ``held, free`` (each marked
+    :data:`UNCONVERGED_MARK` where its sizing did not converge); empty when not sized."""
+    if c["status"] in (CandidateStatus.SCORED, CandidateStatus.NOT_SIZED):
+        return ""
+    mark = {True: "", False: UNCONVERGED_MARK}
+    out = f"{c['sizing_drop']:.3g}{mark[bool(c.get('sizing_converged'))]}"
+    free = c["sizing_drop_baseline_free"]
+    if free is not None:
+        out += f", {free:.3g}{mark[bool(c['sizing_baseline_free_converged'])]}"
+    return out
+
+
 def _evidence(c) -> dict:
     return {"score_statistic": c.score, "probe": c.probe, "sizing_drop": c.size_drop,
+            "sizing_converged": c.size_converged,
             "sizing_drop_baseline_free": _finite(c.size_drop_free),
+            "sizing_baseline_free_converged": c.size_free_converged,
             "sizing_baseline_free_move": _finite(c.size_free_reach),
             "sizing_baseline_free_extrapolated": c.size_free_extrapolated,
             "explained_share_of_excess": _finite(c.explained),
@@ -235,12 +254,13 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
             dbic = "" if c["criterion_delta"] is None else f"{c['criterion_delta']:.1f}"
             ex = ("" if c["explained_share_of_excess"] is None
                   else f"{100 * c['explained_share_of_excess']:.0f} %")
-            free = c["sizing_drop_baseline_free"]
-            drops = f"{c['sizing_drop']:.3g}" + ("" if free is None else f", {free:.3g}")
+            drops = _sizing_drops(c)
             lines.append(f"| {c['name']} | {c['score_statistic']:.3g} | "
                          f"{drops} | {c['refitted']} | "
                          f"{dbic} | {ex} | {c['note']} |")
         lines.append("")
+    lines += [f"{UNCONVERGED_MARK}: the sizing stopped at its step cap, short of its "
+              "optimum.", ""]
     if content.get("detection_limits"):
         lines += ["## Detection limits on these recordings", "",
                   "The smallest strength of each entry that a refit could name (its "
