@@ -84,12 +84,10 @@ def _sizing_drops(c: dict) -> str:
     :data:`UNCONVERGED_MARK` where its sizing did not converge); empty when not sized."""
     if c["status"] in (CandidateStatus.SCORED, CandidateStatus.NOT_SIZED):
         return ""
-    mark = {True: "", False: UNCONVERGED_MARK}
-    out = f"{c['sizing_drop']:.3g}{mark[bool(c.get('sizing_converged'))]}"
-    free = c["sizing_drop_baseline_free"]
-    if free is not None:
-        out += f", {free:.3g}{mark[bool(c['sizing_baseline_free_converged'])]}"
-    return out
+    drops = [(c["sizing_drop"], c.get("sizing_converged")),
+             (c["sizing_drop_baseline_free"], c["sizing_baseline_free_converged"])]
+    return ", ".join(f"{d:.3g}{'' if ok else UNCONVERGED_MARK}"
+                     for d, ok in drops if d is not None)
 
 
 def _evidence(c) -> dict:
@@ -254,13 +252,13 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
             dbic = "" if c["criterion_delta"] is None else f"{c['criterion_delta']:.1f}"
             ex = ("" if c["explained_share_of_excess"] is None
                   else f"{100 * c['explained_share_of_excess']:.0f} %")
-            drops = _sizing_drops(c)
             lines.append(f"| {c['name']} | {c['score_statistic']:.3g} | "
-                         f"{drops} | {c['refitted']} | "
+                         f"{_sizing_drops(c)} | {c['refitted']} | "
                          f"{dbic} | {ex} | {c['note']} |")
         lines.append("")
-    lines += [f"{UNCONVERGED_MARK}: the sizing stopped at its step cap, short of its "
-              "optimum.", ""]
+    if any(UNCONVERGED_MARK in line for line in lines):
+        lines += [f"{UNCONVERGED_MARK}: the sizing stopped at its step cap, short of its "
+                  "optimum.", ""]
     if content.get("detection_limits"):
         lines += ["## Detection limits on these recordings", "",
                   "The smallest strength of each entry that a refit could name (its "
