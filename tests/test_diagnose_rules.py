@@ -749,3 +749,71 @@ def test_an_extrapolated_free_sizing_counts_nothing_and_is_not_carried_on():
     assert unbounded([r]) == [r] and r.size_drop_free == 1_000.0
     record_free_sizing(r, free(6_000.0, False, 2.5), rss)
     assert r.size_drop_free == 200.0 and unbounded([r]) == []
+
+
+def test_a_free_sizings_point_is_the_entry_on_the_baseline_moved_to_first_order():
+    from types import SimpleNamespace
+
+    from stickslip_jax.diagnose.problem import BaselineSpan
+    from stickslip_jax.diagnose.sizing import FreeSizing
+    from stickslip_jax.identify.parameters import ParameterMap
+
+    act = ss.lu2015_slc1720()
+    # The "entry": Kp, sized in the held sizing's coordinates (log: θ = 0.1 is ×e^0.1);
+    # the baseline's move: Mp by 0.2, Dp by −0.3 (log coordinates).
+    program = SimpleNamespace(pmap=ParameterMap.make(act, ["Kp"]))
+    free = FreeSizing("x", program, np.array([0.1]), BaselineSpan.of(np.eye(2)), 1.0,
+                      True, 0.3, np.array([0.2, -0.3]))
+    point = free.point(["Mp", "Dp"])
+    np.testing.assert_allclose(
+        [point.piezo.Kp, point.piezo.Mp, point.piezo.Dp],
+        [act.piezo.Kp * np.exp(0.1), act.piezo.Mp * np.exp(0.2),
+         act.piezo.Dp * np.exp(-0.3)], rtol=1e-12)
+    assert float(point.slider.Ms) == float(act.slider.Ms)
+
+
+@pytest.mark.parametrize("case", ["below", "cheaper", "dearer", "extrapolated", "folded"])
+def test_a_refit_starts_where_the_sizings_cost_least_once_the_held_one_passes_the_baseline(
+        case):
+    """A held sizing at or below the round's cost is the start; one above it gives way
+    to its free sizing's point when that costs less (one evaluation), and only then."""
+    from types import SimpleNamespace
+
+    from stickslip_jax.diagnose.refit import RoundStart, refit_start
+    from stickslip_jax.diagnose.sizing import HeldSizing
+
+    evaluated = []
+
+    class Point:
+        pass
+
+    point = Point()
+
+    def evaluate(act):
+        evaluated.append(act)
+        return ({"cheaper": 5e5, "dearer": 2e6}[case], None, None)
+
+    def point_of(base_names):
+        if case == "folded":
+            raise ValueError("a partial sum below zero")
+        return point
+
+    problem = SimpleNamespace(evaluate=evaluate, say=lambda s: None)
+    setup = SimpleNamespace(problem=problem, base_names=["Mp"])
+    at = RoundStart(act=None, rss=2.28e5, nrmse=0.0, excess=1e5, reserve=0.0)
+    held_start = object()
+    held = HeldSizing(held_start, {}, None, np.zeros(1),
+                      2e5 if case == "below" else 1.1e6, False)
+    free = SimpleNamespace(extrapolated=case == "extrapolated", move=np.zeros(1),
+                           reach=0.4, point=point_of)
+    res = CandidateResult("drive_bandwidth")
+    start = refit_start(setup, at, res, held, free)
+    if case == "cheaper":
+        assert start is point and evaluated == [point]
+        assert (res.refit_start, res.refit_start_cost) == ("free sizing's point", 5e5)
+        return
+    assert start is held_start
+    assert (res.refit_start, res.refit_start_cost) == ("held sizing", held.cost)
+    assert evaluated == ([point] if case == "dearer" else [])
+    # No free sizing: the held one, whatever its cost.
+    assert refit_start(setup, at, CandidateResult("x"), held, None) is held_start

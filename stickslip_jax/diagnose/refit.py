@@ -24,6 +24,7 @@ from .policy import DEFAULT_POLICY, Policy
 from .problem import Problem
 from .results import CandidateResult, CandidateStatus
 from .significance import per_recording_chi2
+from .sizing import FreeSizing, HeldSizing
 
 
 @dataclass(frozen=True)
@@ -120,19 +121,59 @@ def judge_plausibility(res: CandidateResult, cand: Candidate, say) -> None:
         say(f"[refit {cand.name}] implausible: {res.implausible}")
 
 
+def refit_start(setup: RefitSetup, at: RoundStart, res: CandidateResult,
+                held: HeldSizing, free: FreeSizing | None) -> Actuator:
+    """Where ``res``'s refit starts: its held sizing ``held``, unless that costs more
+    than the round's start ``at`` and its sizing with the baseline free to first order
+    (``free``, within the first order) points to a cheaper model: the entry at its
+    free sizing's values on the baseline moved as that sizing takes for granted
+    (:meth:`~.sizing.FreeSizing.point`; one simulation to cost it).
+
+    The held sizing holds the baseline the score's first-order shift moved it to
+    (:func:`~.sizing.first_order_start`); where that start is far off, it can stop
+    several times above the baseline's cost (a slew-limited drive sized at 4.8x it,
+    while its free sizing fell to 0.7x): a refit from there first undoes the entry (its
+    first step ran the drive's pole to 1e7 MHz, where the entry does nothing) rather
+    than fit it. The start and its cost are recorded (:attr:`~.results.CandidateResult.
+    refit_start`)."""
+    res.refit_start, res.refit_start_cost = "held sizing", held.cost
+    if held.cost <= at.rss or free is None or free.extrapolated or free.move is None:
+        return held.start
+    problem = setup.problem
+    try:
+        point = free.point(setup.base_names)
+        cost = problem.evaluate(point)[0]
+    except ValueError as err:
+        problem.say(f"[refit {res.name}] its free sizing's point is not a model: {err}")
+        return held.start
+    problem.say(f"[refit {res.name}] its held sizing costs {held.cost:.5g}, above the "
+                f"round's {at.rss:.5g}; its free sizing's point (baseline moved by up "
+                f"to {free.reach:.3g}) costs {cost:.5g}")
+    if not cost < held.cost:
+        return held.start
+    res.refit_start = "free sizing's point"
+    res.refit_start_cost = cost
+    return point
+
+
 def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candidate,
-          start: Actuator, specs: dict, *, budgeted: bool = True) -> None:
-    """Refit ``res`` (entry ``cand``, sized to ``start`` with its ``specs``) with every
-    baseline parameter freed; skipped, and set aside, when ``budgeted`` and its
-    estimated work would pass the budget (keeping ``at.reserve``)."""
+          held: HeldSizing, free: FreeSizing | None = None, *,
+          budgeted: bool = True) -> None:
+    """Refit ``res`` (entry ``cand``, sized as ``held`` and ``free``) with every
+    baseline parameter freed, from :func:`refit_start`; skipped, and set aside, when
+    ``budgeted`` and its estimated work would pass the budget (keeping
+    ``at.reserve``)."""
     problem = setup.problem
     budget, say = problem.budget, problem.say
-    need = problem.refit_estimate(start, setup.columns(start, specs), setup.max_steps)
+    specs = held.specs
+    need = problem.refit_estimate(held.start, setup.columns(held.start, specs),
+                                  setup.max_steps)
     if budgeted and not budget.allows(need, at.reserve):
         res.set_aside(CandidateStatus.SKIPPED, budget.skip(f"refit {cand.name}", need))
         say(f"[budget] refit {cand.name} {res.note}")
         return
     t0 = time.perf_counter()
+    start = refit_start(setup, at, res, held, free)
     try:
         fitted, _, out = problem.refit(start, setup.base_names + list(specs), specs,
                                        label=f"refit {cand.name}",

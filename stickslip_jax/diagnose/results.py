@@ -88,6 +88,11 @@ class CandidateResult:
     """The largest move [θ] of a baseline coordinate that sizing's cost takes for
     granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
     refitted: bool = False
+    refit_start: str = ""
+    """Where its refit started: ``"held sizing"`` or ``"free sizing's point"``
+    (:func:`~.refit.refit_start`); empty when not refitted."""
+    refit_start_cost: float = np.nan
+    """The whitened cost there."""
     params: dict = field(default_factory=dict)
     rss_before: float = np.nan
     rss_after: float = np.nan

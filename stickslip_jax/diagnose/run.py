@@ -45,7 +45,9 @@ it decides by is a field of its :class:`~.policy.Policy`:
    baseline absorbed a large effect; never one whose score and sizing both point the
    wrong way, nor one whose sizings bound its refit's drop below what any acceptance
    needs, :func:`~.rules.refit_reach`); each from the current optimum, freeing the
-   entry's parameters and every baseline parameter. When the refits that explain the
+   entry's parameters and every baseline parameter: from its held sizing, or, where
+   that costs more than the round's optimum, from its free sizing's point when that
+   costs less (:func:`~.refit.refit_start`). When the refits that explain the
    residual all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a seeded entry
    sized but not refitted gets its refit before one is named (an entry that mimics most
    of another effect). When the baseline was identified here, its polish divided the
@@ -130,7 +132,13 @@ from .rules import (
 )
 from .scores import score_candidates
 from .significance import Significance
-from .sizing import FreeSizing, carry_on_free_sizing, chosen_for_sizing, size_entries
+from .sizing import (
+    FreeSizing,
+    HeldSizing,
+    carry_on_free_sizing,
+    chosen_for_sizing,
+    size_entries,
+)
 
 
 @dataclass(frozen=True)
@@ -253,9 +261,12 @@ def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Signific
 
 
 def _sized_entry(res: CandidateResult, pool: Sequence[Candidate],
-                 sized: dict) -> tuple[Candidate, Actuator, dict]:
-    """``(entry, sized actuator, specs)`` of the sized entry ``res``."""
-    return next(c for c in pool if c.name == res.name), *sized[res.name]
+                 sized: dict[str, HeldSizing], free_sizings: dict[str, FreeSizing],
+                 ) -> tuple[Candidate, HeldSizing, FreeSizing | None]:
+    """``(entry, its held sizing, its free sizing or None)`` of the sized entry
+    ``res``."""
+    return (next(c for c in pool if c.name == res.name), sized[res.name],
+            free_sizings.get(res.name))
 
 
 def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
@@ -277,7 +288,7 @@ def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     if bar is None:
         return False
     if unbounded([res], bar) and res.name in free_sizings:
-        carry_on_free_sizing(problem, res, free_sizings[res.name], at.rss)
+        carry_on_free_sizing(problem, res, free_sizings, at.rss)
     if not cannot_rival(res, bar):
         return False
     res.set_aside(CandidateStatus.CANNOT_RIVAL, cannot_rival_note(res, bar))
@@ -302,7 +313,8 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
     for res in first_refits(ranked, top, above_noise, policy):
         if _cannot_rival(setup, at, res, ranked, seeded, free_sizings):
             continue
-        refit(setup, at, res, *_sized_entry(res, pool, sized), budgeted=budgeted_first)
+        refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings),
+              budgeted=budgeted_first)
     if not any_explains(ranked, policy):
         # The first-order ranking misleads when the baseline absorbed much of a large
         # effect (a slew-limited drive ranked below a constant load that mimics part
@@ -315,18 +327,18 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
             # A free sizing that stopped short of its optimum bounds nothing: carry it
             # on (a few parameters, the compiled program) so that it can.
             for res in unbounded(ranked, reach):
-                carry_on_free_sizing(setup.problem, res, free_sizings[res.name], at.rss)
+                carry_on_free_sizing(setup.problem, res, free_sizings, at.rss)
         for res in fallback_refits(ranked, reach):
-            refit(setup, at, res, *_sized_entry(res, pool, sized))
+            refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings))
         for res in rivals_in_reach(ranked, at.rss, tolerance_rss, n_obs, policy):
-            refit(setup, at, res, *_sized_entry(res, pool, sized))
+            refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings))
     if any_explains(ranked, policy) and far_from_noise(ranked, n_obs, policy):
         # A refit explains most of the excess but leaves a residual far above the
         # noise: it may mimic an effect whose own entry was never refitted because its
         # first-order ranking is unreliable (a seeded entry); give those their refit
         # before one is named.
         for res in second_look(ranked, seeded):
-            refit(setup, at, res, *_sized_entry(res, pool, sized))
+            refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings))
     if reidentification is not None:
         rss_identified, init, fix, staged = reidentification
         if (staged and not any_explains(ranked, policy)
@@ -339,7 +351,8 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
             # bent baseline 1.3e7 before its polish and 1.5e6 after it).
             bar = max(at.rss, rss_identified)
             for res in reidentify_order(ranked, top):
-                reidentify(setup, at, res, *_sized_entry(res, pool, sized), bar,
+                cand, held, _ = _sized_entry(res, pool, sized, free_sizings)
+                reidentify(setup, at, res, cand, held.start, held.specs, bar,
                            init=init, fix=fix, staged=staged)
             timings["reidentify_s"] = time.perf_counter() - t0
     for res in ranked:

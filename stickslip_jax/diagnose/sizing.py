@@ -103,20 +103,41 @@ def best_seed(problem: Problem, act: Actuator, base_names: list[str], cand: Cand
     return best
 
 
-def size_best(problem: Problem, name: str, starts):
+@dataclass(frozen=True)
+class HeldSizing:
+    """An entry sized with the baseline held (:func:`size_best`): where its refits
+    start (:func:`~.refit.refit_start`), and the program and θ its sizing with the
+    baseline free to first order goes on from (:func:`size_with_baseline_free`)."""
+
+    start: Actuator
+    """The sized actuator: the baseline it was sized on, with the entry at its sized
+    values."""
+    specs: dict
+    """The entry's own quantities (``name →`` :class:`~stickslip_jax.identify.
+    parameters.ParameterSpec`)."""
+    program: FitProgram
+    """The sizing's compiled program (its coordinates)."""
+    theta: np.ndarray
+    """Where the sizing stopped, in those coordinates."""
+    cost: float
+    """Its whitened cost there."""
+    converged: bool
+    """It ended by its Gauss-Newton test, not at its step cap."""
+
+
+def size_best(problem: Problem, name: str, starts) -> HeldSizing | None:
     """Size an entry from each ``(tag, start, specs)`` of ``starts`` (its own parameters,
-    the baseline held): ``(cost, sized actuator, specs, program, θ, converged)`` of the
-    lowest, or None; ``program`` (:class:`~.problem.FitProgram`) and ``θ`` its fit's
-    coordinates, for :func:`size_with_baseline_free`; ``converged``: that fit ended by
-    its Gauss-Newton test, not at :data:`SIZE_STEPS`."""
+    the baseline held, :data:`SIZE_STEPS` steps at most): the lowest
+    (:class:`HeldSizing`), or None."""
     best = None
     for tag, start, specs in starts:
         label = f"size {name} ({tag})" if tag else f"size {name}"
         program = problem.program(start, list(specs), specs)
         sized, cost, out = problem.fit_from(program, program.pmap.zeros(), label=label,
                                             max_steps=SIZE_STEPS)
-        if best is None or cost < best[0]:
-            best = (cost, sized, specs, program, out.theta, bool(out.converged))
+        if best is None or cost < best.cost:
+            best = HeldSizing(sized, specs, program, np.asarray(out.theta), float(cost),
+                              bool(out.converged))
     return best
 
 
@@ -139,6 +160,9 @@ class FreeSizing:
     reach: float
     """The largest move [θ] of a baseline coordinate its cost takes for granted
     (:meth:`~.problem.BaselineSpan.reach` of the residual where it stopped)."""
+    move: np.ndarray | None = None
+    """That move of the baseline's coordinates [θ] (:meth:`~.problem.BaselineSpan.move`),
+    for :meth:`point`."""
 
     @property
     def extrapolated(self) -> bool:
@@ -146,6 +170,14 @@ class FreeSizing:
         :data:`~.problem.FIRST_ORDER_REACH`: its cost is the linearisation's, not one a
         refit can reach."""
         return self.reach > FIRST_ORDER_REACH
+
+    def point(self, base_names: Sequence[str]) -> Actuator:
+        """The model its cost stands for: the entry at the sizing's values on the
+        baseline moved by :attr:`move` (from the baseline the entry was sized on). A
+        ValueError where the move leaves the baseline's domain (a PI loop folded)."""
+        sized = self.program.pmap.actuator(np.asarray(self.theta), xp=np)
+        return ParameterMap.make(sized, list(base_names)).actuator(np.asarray(self.move),
+                                                                   xp=np)
 
     def carried_on(self, problem: Problem, max_steps: int = CARRY_ON_STEPS) -> FreeSizing:
         """The same fit carried on from where it stopped, at most ``max_steps`` more
@@ -169,9 +201,10 @@ def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, th
     _, cost, out = problem.fit_from(program, theta, max_steps=max_steps, label=label,
                                     project=baseline_span.basis)
     theta = np.asarray(out.theta)
-    reach = baseline_span.reach(problem.residual_at(program, theta))
+    move = baseline_span.move(problem.residual_at(program, theta))
+    reach = float(np.max(np.abs(move), initial=0.0))
     free = FreeSizing(name, program, theta, baseline_span, float(cost),
-                      bool(out.converged), reach)
+                      bool(out.converged), reach, move)
     verdict = ("extrapolated, its drop not counted" if free.extrapolated
                else "within the first order")
     problem.say(f"[{label}] the baseline's first-order move reaches {reach:.3g} (θ; "
@@ -194,12 +227,14 @@ def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> No
     res.size_free_converged = free.converged
 
 
-def carry_on_free_sizing(problem: Problem, res: CandidateResult, free: FreeSizing,
-                         rss: float) -> None:
-    """Carry ``res``'s free sizing ``free`` on (:meth:`FreeSizing.carried_on`) and
-    record it (:func:`record_free_sizing`): a sizing that stopped short of its optimum
-    bounds nothing (:func:`~.rules.refit_reach`)."""
-    record_free_sizing(res, free.carried_on(problem), rss)
+def carry_on_free_sizing(problem: Problem, res: CandidateResult,
+                         free_sizings: dict[str, FreeSizing], rss: float) -> None:
+    """Carry ``res``'s free sizing (in ``free_sizings``, replaced there) on
+    (:meth:`FreeSizing.carried_on`) and record it (:func:`record_free_sizing`): a
+    sizing that stopped short of its optimum bounds nothing
+    (:func:`~.rules.refit_reach`)."""
+    free = free_sizings[res.name] = free_sizings[res.name].carried_on(problem)
+    record_free_sizing(res, free, rss)
 
 
 def worth_sizing_after_acceptance(chosen: list[CandidateResult], excess: float,
@@ -251,7 +286,7 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
                  policy: Policy = DEFAULT_POLICY,
                  baseline_span: BaselineSpan | None = None,
                  free_sizings: dict[str, FreeSizing] | None = None,
-                 ) -> dict[str, tuple[Actuator, dict]]:
+                 ) -> dict[str, HeldSizing]:
     """Size each entry of ``chosen`` whose |score| reaches :attr:`~.Policy.score_min`,
     from the round's optimum ``act`` (cost ``rss``) and, in round one, from
     ``unpolished`` too (the polish can bend the baseline to mimic part of an effect, a
@@ -259,8 +294,8 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
     sized entry's ``size_drop`` and status, and, given ``baseline_span`` (the
     span of the baseline's Jacobian at ``act``), its ``size_drop_free``
     (:func:`size_with_baseline_free`; never below ``size_drop``), kept in
-    ``free_sizings`` (``name →`` :class:`FreeSizing`) when given; returns ``name →
-    (sized actuator, specs)`` (``scores``: :func:`~.scores.score_candidates`'s)."""
+    ``free_sizings`` (``name →`` :class:`FreeSizing`) when given; returns ``name →``
+    :class:`HeldSizing` (``scores``: :func:`~.scores.score_candidates`'s)."""
     sized = {}
     for res in chosen:
         if abs(res.score) < policy.score_min:
@@ -280,19 +315,18 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
             if before_polish:
                 starts.append(("unpolished",
                                *cand.attach(unpolished, 0.25 * strength, probe)))
-        best_sized = size_best(problem, cand.name, starts)
-        if best_sized is None:
+        held = size_best(problem, cand.name, starts)
+        if held is None:
             continue
-        rss_size, start, specs, program, theta, converged = best_sized
-        res.size_drop, res.size_converged = rss - rss_size, converged
+        res.size_drop, res.size_converged = rss - held.cost, held.converged
         if baseline_span is not None:
             # The round starts at an optimum, where the residual is (nearly) orthogonal
             # to the span: its projected cost is ``rss``, the reference of both drops.
-            free = size_with_baseline_free(problem, cand.name, program, theta,
+            free = size_with_baseline_free(problem, cand.name, held.program, held.theta,
                                            baseline_span)
             record_free_sizing(res, free, rss)
             if free_sizings is not None:
                 free_sizings[res.name] = free
         res.status = CandidateStatus.SIZED
-        sized[res.name] = (start, specs)
+        sized[res.name] = held
     return sized
