@@ -121,6 +121,14 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
     first = {c["name"]: c for c in d["candidates_by_round"][0]}["sensor_delay"]
     assert first["status"] == "refitted" and first["accepted"] and not first["partial"]
     assert first["rss_after"] < first["rss_before"] and first["added_parameters"] == 1
+    # Where its refit started: the held sizing (its cost is the round's less its drop),
+    # or, only where that costs more than the round's start, a cheaper point.
+    held_cost = first["rss_before"] - first["sizing_drop"]
+    if first["refit_start"] == "held sizing":
+        assert first["refit_start_cost"] == pytest.approx(held_cost, rel=1e-9)
+    else:
+        assert first["refit_start"] == "free sizing's point"
+        assert first["refit_start_cost"] < held_cost and held_cost > first["rss_before"]
     report = (out / "report.md").read_text()
     assert "sensor_delay" in report and (out / "figures" / "residual_map.png").exists()
     # Nothing is replaced without --force; unknown entries are refused.
