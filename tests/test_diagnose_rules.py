@@ -726,7 +726,8 @@ def test_an_extrapolated_free_sizing_counts_nothing_and_is_not_carried_on():
     rss = 10_000.0
 
     def free(cost, converged, reach):
-        return FreeSizing("drive_bandwidth", None, np.zeros(1), span, cost, converged, reach)
+        return FreeSizing("drive_bandwidth", None, np.zeros(1), span, cost, converged,
+                          np.array([0.1, -reach, 0.0]))  # reach: the largest |move|
 
     r = CandidateResult("drive_bandwidth", score=150.0, size_drop=200.0)
     record_free_sizing(r, free(6_000.0, True, 0.6), rss)  # within the first-order range
@@ -763,7 +764,8 @@ def test_a_free_sizings_point_is_the_entry_on_the_baseline_moved_to_first_order(
     # the baseline's move: Mp by 0.2, Dp by −0.3 (log coordinates).
     program = SimpleNamespace(pmap=ParameterMap.make(act, ["Kp"]))
     free = FreeSizing("x", program, np.array([0.1]), BaselineSpan.of(np.eye(2)), 1.0,
-                      True, 0.3, np.array([0.2, -0.3]))
+                      True, np.array([0.2, -0.3]))
+    assert free.reach == 0.3 and not free.extrapolated
     point = free.point(["Mp", "Dp"])
     np.testing.assert_allclose(
         [point.piezo.Kp, point.piezo.Mp, point.piezo.Dp],
@@ -804,7 +806,7 @@ def test_a_refit_starts_where_the_sizings_cost_least_once_the_held_one_passes_th
     held_start = object()
     held = HeldSizing(held_start, {}, None, np.zeros(1),
                       2e5 if case == "below" else 1.1e6, False)
-    free = SimpleNamespace(extrapolated=case == "extrapolated", move=np.zeros(1),
+    free = SimpleNamespace(extrapolated=case == "extrapolated",
                            reach=0.4, point=point_of)
     res = CandidateResult("drive_bandwidth")
     start = refit_start(setup, at, res, held, free)

@@ -137,7 +137,7 @@ def refit_start(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     than fit it. The start and its cost are recorded (:attr:`~.results.CandidateResult.
     refit_start`)."""
     res.refit_start, res.refit_start_cost = "held sizing", held.cost
-    if held.cost <= at.rss or free is None or free.extrapolated or free.move is None:
+    if held.cost <= at.rss or free is None or free.extrapolated:
         return held.start
     problem = setup.problem
     try:

@@ -157,12 +157,15 @@ class FreeSizing:
     """Its whitened cost there (projected)."""
     converged: bool
     """It ended by its Gauss-Newton test."""
-    reach: float
-    """The largest move [θ] of a baseline coordinate its cost takes for granted
-    (:meth:`~.problem.BaselineSpan.reach` of the residual where it stopped)."""
-    move: np.ndarray | None = None
-    """That move of the baseline's coordinates [θ] (:meth:`~.problem.BaselineSpan.move`),
-    for :meth:`point`."""
+    move: np.ndarray
+    """The baseline's first-order move [θ] its cost takes for granted
+    (:meth:`~.problem.BaselineSpan.move` of the residual where it stopped)."""
+
+    @property
+    def reach(self) -> float:
+        """The largest |move| of a baseline coordinate [θ]
+        (:meth:`~.problem.BaselineSpan.reach`)."""
+        return float(np.max(np.abs(self.move), initial=0.0))
 
     @property
     def extrapolated(self) -> bool:
@@ -201,13 +204,12 @@ def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, th
     _, cost, out = problem.fit_from(program, theta, max_steps=max_steps, label=label,
                                     project=baseline_span.basis)
     theta = np.asarray(out.theta)
-    move = baseline_span.move(problem.residual_at(program, theta))
-    reach = float(np.max(np.abs(move), initial=0.0))
     free = FreeSizing(name, program, theta, baseline_span, float(cost),
-                      bool(out.converged), reach, move)
+                      bool(out.converged),
+                      baseline_span.move(problem.residual_at(program, theta)))
     verdict = ("extrapolated, its drop not counted" if free.extrapolated
                else "within the first order")
-    problem.say(f"[{label}] the baseline's first-order move reaches {reach:.3g} (θ; "
+    problem.say(f"[{label}] the baseline's first-order move reaches {free.reach:.3g} (θ; "
                 f"trusted up to {FIRST_ORDER_REACH:g}, a factor e): {verdict}")
     return free
 
