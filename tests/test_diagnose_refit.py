@@ -140,3 +140,41 @@ def test_a_fits_last_jacobian_recentred_is_the_jacobian_around_its_optimum(case)
     flat = theta.copy()
     flat[column] = -800.0
     assert recentred(jac, pmap, flat, entry_specs) is None
+
+
+def test_a_refit_ending_where_the_simulator_cannot_step_is_set_aside_not_a_crash(
+        case, monkeypatch):
+    """A fit keeps its start's plan, so it can end at a model that plan under-resolves
+    and the simulator refuses (here a slew-limited drive whose time constant ran to a
+    1 ps pole): the refit says so and is set aside; the diagnosis goes on."""
+    from stickslip_jax.diagnose.catalogue import candidate as entry_of
+    from stickslip_jax.diagnose.refit import RefitSetup, RoundStart, refit
+    from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
+    from stickslip_jax.diagnose.sizing import HeldSizing
+    from stickslip_jax.model.extensions import SlewLimitedInput
+
+    recs, attached, entry_specs = case
+    problem = _problem(recs)
+    unsteppable = eqx.tree_at(lambda a: a.input_stage, attached,
+                              SlewLimitedInput(1e6, 1e-12))
+    with pytest.raises(ValueError, match="pole"):
+        problem.plan_factor(unsteppable)
+    fits = []
+
+    def fit(act, names, specs, **kw):
+        fits.append(kw["label"])
+        return unsteppable, 1.0, None
+    monkeypatch.setattr(problem, "fit", fit)
+    names = baseline_free(attached, problem.data, problem.fix) + list(entry_specs)
+    with pytest.raises(ValueError, match="ended at a model the simulator cannot step"):
+        problem.refit(attached, names, entry_specs, label="r", max_steps=5)
+    assert fits == ["r, PI weights held", "r"]
+
+    setup = RefitSetup(problem, baseline_free(attached, problem.data, problem.fix),
+                       n_base=0, max_steps=5)
+    at = RoundStart(act=attached, rss=1e4, nrmse=0.0, excess=1e4, reserve=0.0)
+    held = HeldSizing(attached, entry_specs, None, np.zeros(1), 9e3, True)
+    res = CandidateResult("external_load")
+    refit(setup, at, res, entry_of("external_load"), held)
+    assert res.status is CandidateStatus.REFIT_FAILED and not res.refitted
+    assert "cannot step" in res.note

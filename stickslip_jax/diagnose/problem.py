@@ -384,14 +384,28 @@ class Problem:
         columns (35 of about 47) and a new entry barely moves the loading curve, so the
         steps that carry the entry to its strength are taken at about a third of the
         columns, and the full fit starts next to its optimum (typically 1-4 steps).
-        Returns the second stage's result (its residual and Jacobian at the optimum)."""
+        Returns the second stage's result (its residual and Jacobian at the optimum).
+
+        Raises ValueError where it starts at, or ends at, a model the simulator cannot
+        step on these data: a fit keeps the plan of its start, so it can walk into
+        models that plan under-resolves (a slew-limited drive whose time constant ran
+        to a pole at 100 MHz, costed at the tens of stage steps per gap it started
+        with); the cost it reports there is the coarse plan's, not the model's, and
+        nothing after it could simulate that model."""
         light = [n for n in names if n not in HELD_FIRST]
         if len(light) == len(names):
-            return self.fit(act, names, specs, label=label, max_steps=max_steps)
-        act, _, _ = self.fit(act, light, specs, label=f"{label}, PI weights held",
-                             max_steps=max_steps)
-        return self.fit(act, names, specs, label=label, max_steps=max_steps,
-                        initial_damping=1e-3)
+            out = self.fit(act, names, specs, label=label, max_steps=max_steps)
+        else:
+            act, _, _ = self.fit(act, light, specs, label=f"{label}, PI weights held",
+                                 max_steps=max_steps)
+            out = self.fit(act, names, specs, label=label, max_steps=max_steps,
+                           initial_damping=1e-3)
+        try:
+            self.plan_factor(out[0])
+        except ValueError as err:  # (a SteppingError)
+            raise ValueError(f"it ended at a model the simulator cannot step on these "
+                             f"data: {err}") from err
+        return out
 
 
 HELD_FIRST = ("pi_weights",)

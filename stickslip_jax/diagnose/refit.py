@@ -231,9 +231,14 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
     if not rss_staged < bar:
         res.wall_s += time.perf_counter() - t0
         return  # the entry did not help the staged steps
-    fitted, _, out = problem.refit(ident.actuator, setup.base_names + list(specs), specs,
-                                   label=f"refit {cand.name} (re-identified)",
-                                   max_steps=setup.max_steps)
+    try:
+        fitted, _, out = problem.refit(ident.actuator, setup.base_names + list(specs),
+                                       specs, label=f"refit {cand.name} (re-identified)",
+                                       max_steps=setup.max_steps)
+    except ValueError as err:
+        say(f"[re-identify {cand.name}] refit not possible: {err}")
+        res.wall_s += time.perf_counter() - t0
+        return
     if not out.cost_end >= res.rss_after:  # also when not refitted (nan)
         record_refit(setup, at, res, fitted, out, specs, t0)
         res.note = "; ".join(filter(None, [
