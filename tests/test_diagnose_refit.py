@@ -161,10 +161,15 @@ def test_a_refit_ending_where_the_simulator_cannot_step_is_set_aside_not_a_crash
         problem.plan_factor(unsteppable)
     fits = []
 
-    def fit(act, names, specs, **kw):
+    def fit(act, names, specs, **kw):  # the first stage
+        fits.append(kw["label"])
+        return attached, 1.0, None
+
+    def fit_from(program, theta, **kw):  # the second
         fits.append(kw["label"])
         return unsteppable, 1.0, None
     monkeypatch.setattr(problem, "fit", fit)
+    monkeypatch.setattr(problem, "fit_from", fit_from)
     names = baseline_free(attached, problem.data, problem.fix) + list(entry_specs)
     with pytest.raises(ValueError, match="ended at a model the simulator cannot step"):
         problem.refit(attached, names, entry_specs, label="r", max_steps=5)
@@ -178,3 +183,49 @@ def test_a_refit_ending_where_the_simulator_cannot_step_is_set_aside_not_a_crash
     refit(setup, at, res, entry_of("external_load"), held)
     assert res.status is CandidateStatus.REFIT_FAILED and not res.refitted
     assert "cannot step" in res.note
+
+
+def test_a_budgeted_refit_whose_second_stage_would_pass_the_budget_is_skipped_there(
+        case, monkeypatch):
+    """The second stage is planned where the first ended; when that plan makes it dearer
+    than the budget left, a budgeted refit is skipped there (said to be), an unbudgeted
+    one goes on."""
+    from stickslip_jax.diagnose.budget import fit_work
+    from stickslip_jax.diagnose.catalogue import candidate as entry_of
+    from stickslip_jax.diagnose.problem import OverBudget
+    from stickslip_jax.diagnose.refit import RefitSetup, RoundStart, refit
+    from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
+    from stickslip_jax.diagnose.sizing import HeldSizing
+
+    recs, attached, entry_specs = case
+    problem = _problem(recs)
+    # The first stage "ends" at a piezo 9x lighter: 3x the sub-steps per sample.
+    stiff = eqx.tree_at(lambda a: a.piezo.Mp, attached, attached.piezo.Mp / 9)
+    assert problem.plan_factor(stiff) >= 2.5 * problem.plan_factor(attached)
+    monkeypatch.setattr(problem, "fit", lambda act, names, specs, **kw: (stiff, 1.0, None))
+    second = []
+    monkeypatch.setattr(problem, "fit_from", lambda program, theta, **kw: second.append(
+        program.factor) or (stiff, 1.0, None))
+    names = baseline_free(attached, problem.data, problem.fix) + list(entry_specs)
+    columns = int(np.size(ParameterMap.make(attached, names, entry_specs).zeros()))
+    before = problem.refit_estimate(attached, columns, 5)
+    need = fit_work(problem.samples, columns, 5, problem.plan_factor(stiff))
+    assert need > 1.01 * before  # the estimate before the refit did not see it
+    problem.budget = Budget(1.01 * before)
+
+    # Unbudgeted: the second stage runs, at the stiff model's plan.
+    problem.refit(attached, names, entry_specs, label="r", max_steps=5)
+    assert second == [problem.plan_factor(stiff)]
+    with pytest.raises(OverBudget) as over:
+        problem.refit(attached, names, entry_specs, label="r", max_steps=5, reserve=0.0)
+    assert over.value.need == pytest.approx(need) and len(second) == 1
+
+    setup = RefitSetup(problem, baseline_free(attached, problem.data, problem.fix),
+                       n_base=columns - 1, max_steps=5)
+    at = RoundStart(act=attached, rss=1e4, nrmse=0.0, excess=1e4, reserve=0.0)
+    held = HeldSizing(attached, entry_specs, None, np.zeros(1), 9e3, True)
+    res = CandidateResult("external_load")
+    refit(setup, at, res, entry_of("external_load"), held)
+    assert res.status is CandidateStatus.SKIPPED and not res.refitted
+    assert "second stage" in problem.budget.skipped[-1] and "would pass" in res.note
+    assert len(second) == 1  # it never ran

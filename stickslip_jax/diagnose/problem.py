@@ -25,7 +25,7 @@ from ..identify.steps import (
 )
 from ..model.actuator import Actuator
 from ..stepping import StepPlan
-from .budget import Budget, evaluation_work, fit_work, plan_factor, solve_work
+from .budget import UNIT, Budget, evaluation_work, fit_work, plan_factor, solve_work
 from .significance import Significance
 
 
@@ -374,7 +374,8 @@ class Problem:
         return np.asarray(r)
 
     def refit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
-              max_steps: int) -> tuple[Actuator, float, object]:
+              max_steps: int, reserve: float | None = None,
+              ) -> tuple[Actuator, float, object]:
         """:meth:`fit` over ``names`` in two stages: first with the quantities of
         :data:`HELD_FIRST` (the PI weights) held, then everything from there, starting
         nearly Gauss-Newton (initial damping 1e-3).
@@ -391,21 +392,44 @@ class Problem:
         models that plan under-resolves (a slew-limited drive whose time constant ran
         to a pole at 100 MHz, costed at the tens of stage steps per gap it started
         with); the cost it reports there is the coarse plan's, not the model's, and
-        nothing after it could simulate that model."""
+        nothing after it could simulate that model.
+
+        ``reserve`` (a budgeted refit; None: not budgeted): raises
+        :class:`OverBudget` before the second stage when that stage, at ``max_steps``
+        and at the plan of where the first ended, would pass the work budget keeping
+        ``reserve``. Its plan is known only then: a first stage that walked into a
+        stiff model (a rate lag's time constant run towards zero) plans the second at
+        tens of sub-steps per sample, and the estimate made before the refit, at its
+        start's plan, did not see it (one such second stage ran 3e8
+        sample-evaluations, 1 500 s)."""
         light = [n for n in names if n not in HELD_FIRST]
         if len(light) == len(names):
             out = self.fit(act, names, specs, label=label, max_steps=max_steps)
         else:
             act, _, _ = self.fit(act, light, specs, label=f"{label}, PI weights held",
                                  max_steps=max_steps)
-            out = self.fit(act, names, specs, label=label, max_steps=max_steps,
-                           initial_damping=1e-3)
+            program = self.program(act, names, specs)
+            need = fit_work(self.samples, int(np.size(program.pmap.zeros())), max_steps,
+                            program.factor)
+            if reserve is not None and not self.budget.allows(need, reserve):
+                raise OverBudget(need)
+            out = self.fit_from(program, program.pmap.zeros(), label=label,
+                                max_steps=max_steps, initial_damping=1e-3)
         try:
             self.plan_factor(out[0])
         except ValueError as err:  # (a SteppingError)
             raise ValueError(f"it ended at a model the simulator cannot step on these "
                              f"data: {err}") from err
         return out
+
+
+class OverBudget(Exception):
+    """A budgeted refit's second stage would pass the work budget
+    (:meth:`Problem.refit`); ``need``: its estimate [sample-evaluations]."""
+
+    def __init__(self, need: float):
+        super().__init__(f"its second stage's {need:.3g} {UNIT}")
+        self.need = float(need)
 
 
 HELD_FIRST = ("pi_weights",)

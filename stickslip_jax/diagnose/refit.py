@@ -21,7 +21,7 @@ from .budget import REIDENTIFY_EVALUATIONS
 from .catalogue import Candidate
 from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
-from .problem import Problem
+from .problem import OverBudget, Problem
 from .results import CandidateResult, CandidateStatus
 from .significance import per_recording_chi2
 from .sizing import FreeSizing, HeldSizing
@@ -177,7 +177,14 @@ def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candida
     try:
         fitted, _, out = problem.refit(start, setup.base_names + list(specs), specs,
                                        label=f"refit {cand.name}",
-                                       max_steps=setup.max_steps)
+                                       max_steps=setup.max_steps,
+                                       reserve=at.reserve if budgeted else None)
+    except OverBudget as over:
+        res.set_aside(CandidateStatus.SKIPPED,
+                      budget.skip(f"second stage of the refit of {cand.name}", over.need))
+        res.wall_s += time.perf_counter() - t0
+        say(f"[budget] refit {cand.name}: {res.note}")
+        return
     except ValueError as err:  # no valid start (e.g. a PI loop at the edge)
         res.set_aside(CandidateStatus.REFIT_FAILED, f"refit not possible: {err}")
         say(f"[refit {cand.name}] {res.note}")
