@@ -398,10 +398,10 @@ class Problem:
         :class:`OverBudget` before the second stage when that stage, at ``max_steps``
         and at the plan of where the first ended, would pass the work budget keeping
         ``reserve``. Its plan is known only then: a first stage that walked into a
-        stiff model (a rate lag's time constant run towards zero) plans the second at
-        tens of sub-steps per sample, and the estimate made before the refit, at its
-        start's plan, did not see it (one such second stage ran 3e8
-        sample-evaluations, 1 500 s)."""
+        stiff model plans the second at many more sub-steps per sample, and the
+        estimate made before the refit, at its start's plan, did not see it (a
+        round-two rate-lag refit's second stage ran 3e8 sample-evaluations, 1 500 s,
+        to a model with a 1.8 MHz mode)."""
         light = [n for n in names if n not in HELD_FIRST]
         if len(light) == len(names):
             out = self.fit(act, names, specs, label=label, max_steps=max_steps)
