@@ -161,14 +161,9 @@ def test_a_refit_ending_where_the_simulator_cannot_step_is_set_aside_not_a_crash
         problem.plan_factor(unsteppable)
     fits = []
 
-    def fit(act, names, specs, **kw):  # the first stage
+    def fit_from(program, theta, **kw):  # the first stage ends here, the second there
         fits.append(kw["label"])
-        return attached, 1.0, None
-
-    def fit_from(program, theta, **kw):  # the second
-        fits.append(kw["label"])
-        return unsteppable, 1.0, None
-    monkeypatch.setattr(problem, "fit", fit)
+        return (attached if "held" in kw["label"] else unsteppable), 1.0, None
     monkeypatch.setattr(problem, "fit_from", fit_from)
     names = baseline_free(attached, problem.data, problem.fix) + list(entry_specs)
     with pytest.raises(ValueError, match="ended at a model the simulator cannot step"):
@@ -202,10 +197,13 @@ def test_a_budgeted_refit_whose_second_stage_would_pass_the_budget_is_skipped_th
     # The first stage "ends" at a piezo 9x lighter: 3x the sub-steps per sample.
     stiff = eqx.tree_at(lambda a: a.piezo.Mp, attached, attached.piezo.Mp / 9)
     assert problem.plan_factor(stiff) >= 2.5 * problem.plan_factor(attached)
-    monkeypatch.setattr(problem, "fit", lambda act, names, specs, **kw: (stiff, 1.0, None))
     second = []
-    monkeypatch.setattr(problem, "fit_from", lambda program, theta, **kw: second.append(
-        program.factor) or (stiff, 1.0, None))
+
+    def fit_from(program, theta, **kw):  # the first stage ends at the stiff model
+        if "held" not in kw["label"]:
+            second.append(program.factor)
+        return stiff, 1.0, None
+    monkeypatch.setattr(problem, "fit_from", fit_from)
     names = baseline_free(attached, problem.data, problem.fix) + list(entry_specs)
     columns = int(np.size(ParameterMap.make(attached, names, entry_specs).zeros()))
     before = problem.refit_estimate(attached, columns, 5)

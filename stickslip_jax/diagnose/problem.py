@@ -92,7 +92,12 @@ class BaselineSpan:
     def reach(self, residual) -> float:
         """The largest |δ| of :meth:`move` [θ]: within :data:`FIRST_ORDER_REACH`, the
         first-order response is the baseline's; beyond, extrapolation."""
-        return float(np.max(np.abs(self.move(residual)), initial=0.0))
+        return largest_move(self.move(residual))
+
+
+def largest_move(move) -> float:
+    """The largest |δ| of a baseline move ``move`` [θ] (0 for none)."""
+    return float(np.max(np.abs(np.asarray(move)), initial=0.0))
 
 
 class ProjectedResiduals(eqx.Module):
@@ -313,7 +318,9 @@ class Problem:
 
     def fit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
             max_steps: int, initial_damping: float = 1.0,
-            project: np.ndarray | None = None) -> tuple[Actuator, float, object]:
+            project: np.ndarray | None = None,
+            admit: Callable[[FitProgram], None] | None = None,
+            ) -> tuple[Actuator, float, object]:
         """Least squares of the whitened residual over ``names`` from ``act``
         (:meth:`fit_from` on a new :meth:`program`).
 
@@ -324,8 +331,12 @@ class Problem:
         there after ``max_steps`` says so. ``initial_damping``: the LM damping at the
         start (small for a start near the optimum). ``project``: an orthonormal
         basis (samples × k) whose span is taken out of the residual
-        (:class:`ProjectedResiduals`); the cost returned is then the projected one."""
+        (:class:`ProjectedResiduals`); the cost returned is then the projected one.
+        ``admit``: called with the program (its plan known) before the fit runs; it
+        raises to refuse it (:meth:`refit`'s budget check)."""
         program = self.program(act, names, specs)
+        if admit is not None:
+            admit(program)
         return self.fit_from(program, program.pmap.zeros(), label=label,
                              max_steps=max_steps, initial_damping=initial_damping,
                              project=project)
@@ -408,13 +419,15 @@ class Problem:
         else:
             act, _, _ = self.fit(act, light, specs, label=f"{label}, PI weights held",
                                  max_steps=max_steps)
-            program = self.program(act, names, specs)
-            need = fit_work(self.samples, int(np.size(program.pmap.zeros())), max_steps,
-                            program.factor)
-            if reserve is not None and not self.budget.allows(need, reserve):
-                raise OverBudget(need)
-            out = self.fit_from(program, program.pmap.zeros(), label=label,
-                                max_steps=max_steps, initial_damping=1e-3)
+
+            def within_budget(program: FitProgram) -> None:
+                need = fit_work(self.samples, int(np.size(program.pmap.zeros())),
+                                max_steps, program.factor)
+                if not self.budget.allows(need, reserve):
+                    raise OverBudget(need)
+            out = self.fit(act, names, specs, label=label, max_steps=max_steps,
+                           initial_damping=1e-3,
+                           admit=None if reserve is None else within_budget)
         try:
             self.plan_factor(out[0])
         except ValueError as err:  # (a SteppingError)

@@ -51,7 +51,7 @@ from ..identify.parameters import ParameterMap
 from ..model.actuator import Actuator
 from .catalogue import Candidate, Probe
 from .policy import DEFAULT_POLICY, Policy
-from .problem import FIRST_ORDER_REACH, BaselineSpan, FitProgram, Problem
+from .problem import FIRST_ORDER_REACH, BaselineSpan, FitProgram, Problem, largest_move
 from .results import CandidateResult, CandidateStatus
 
 SIZE_STEPS = 15
@@ -165,7 +165,7 @@ class FreeSizing:
     def reach(self) -> float:
         """The largest |move| of a baseline coordinate [θ]
         (:meth:`~.problem.BaselineSpan.reach`)."""
-        return float(np.max(np.abs(self.move), initial=0.0))
+        return largest_move(self.move)
 
     @property
     def extrapolated(self) -> bool:
