@@ -11,7 +11,9 @@ and of a forward-mode Jacobian with 4 columns (Mp, Dp, Kp and the stage's time
 constant or slew), each over ``--runs`` repeats after one compiling call, their ratio to
 the no-stage case, and the RMS difference between the two modes' traces [nm]. The
 issue: a drive refit's Jacobian step took 7.4 s against 1.3 s for the other entries
-(#27), because a 1 µs amplifier sets 80 sub-steps per sample against 8.
+(#27), because a 1 µs amplifier sets 80 sub-steps per sample against 8. The tanh slew
+limit also by RK4 steps of its rate ("_rk4"), as before its exact step
+(stickslip_jax/model/slew_exact.py), side by side, at 1 µs and 0.1 µs.
 """
 
 import argparse
@@ -29,6 +31,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
+from stickslip_jax.model.base import AbstractInputStage  # noqa: E402
 from stickslip_jax.model.extensions import (  # noqa: E402
     LowPassInput,
     SecondOrderInput,
@@ -39,15 +42,29 @@ from stickslip_jax.synthetic import paper_protocol  # noqa: E402
 
 ss.fast_cpu_loops()
 
+
+
+class SteppedSlew(SlewLimitedInput):
+    """The tanh slew limit by RK4 steps of its rate (before its exact step)."""
+
+    advance = AbstractInputStage.advance
+
+
 CASES = {
     "none": None,
     "low_pass_20us": LowPassInput(20e-6),
     "low_pass_5us": LowPassInput(5e-6),
     "low_pass_1us": LowPassInput(1e-6),
     "slew_1.2V_per_us": SlewLimitedInput(1.2e6, 1e-6),
+    "slew_1.2V_per_us_rk4": SteppedSlew(1.2e6, 1e-6),
+    "slew_0.1us": SlewLimitedInput(1.2e6, 0.1e-6),
+    "slew_0.1us_rk4": SteppedSlew(1.2e6, 0.1e-6),
     "two_pole_60kHz": SecondOrderInput(60e3, 0.5),
 }
 MODES = {"apart": ss.Stepping(), "inside": ss.Stepping(stage_apart=False)}
+APART_ONLY = ("slew_1.2V_per_us_rk4", "slew_0.1us", "slew_0.1us_rk4")
+"""Cases whose "inside" mode is another case's (the same model) or too slow to time
+(0.1 µs: 800 mechanical sub-steps per sample)."""
 
 
 def stage_leaf(a):
@@ -84,7 +101,7 @@ def main():
         if stage is not None:
             getters.append(stage_leaf)
         for mode, stepping in MODES.items():
-            if stage is None and mode == "inside":
+            if (stage is None or case in APART_ONLY) and mode == "inside":
                 continue
             plan = ss.plan_steps(act, dt, stepping=stepping)
 

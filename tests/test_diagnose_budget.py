@@ -10,6 +10,7 @@ from stickslip_jax.diagnose.budget import (
     CLOSED_FORM_STAGE_FACTOR,
     DEFAULT_WORK_BUDGET,
     REFERENCE_SUBSTEPS,
+    SOLVED_STAGE_FACTOR,
     STAGE_STEP_WEIGHT,
     TANGENT_WEIGHT,
     UNIT,
@@ -98,12 +99,17 @@ def test_an_identification_is_charged_each_stretch_at_the_plan_it_ran_at():
 
 
 def test_the_plan_factor_counts_sub_steps_and_what_a_drive_stage_adds():
-    from stickslip_jax.model.extensions import LowPassInput, SlewLimitedInput
+    from stickslip_jax.model.extensions import (
+        ClippedSlewInput,
+        LowPassInput,
+        ParallelInputs,
+        SlewLimitedInput,
+    )
     from stickslip_jax.model.stages import IdentityInput
     from stickslip_jax.stepping import StepPlan
 
     none, low_pass = IdentityInput(), LowPassInput(1e-6)
-    slew = SlewLimitedInput(1e6, 1e-6)
+    slew = ClippedSlewInput(1e6, 1e-6)             # by RK4 steps of its rate
     assert plan_factor(StepPlan(REFERENCE_SUBSTEPS), none) == 1.0
     # Sub-steps cost in proportion: a mode 4x faster than the baseline's, 4x the work.
     assert plan_factor(StepPlan(4 * REFERENCE_SUBSTEPS), none) == pytest.approx(4.0)
@@ -114,24 +120,33 @@ def test_the_plan_factor_counts_sub_steps_and_what_a_drive_stage_adds():
         pytest.approx(1 + 5 * STAGE_STEP_WEIGHT)
     assert plan_factor(StepPlan(2 * REFERENCE_SUBSTEPS, stage_substeps=40), slew) == \
         pytest.approx(2 * (1 + 40 * STAGE_STEP_WEIGHT))
+    # The tanh slew limit's exact step costs its Newton steps, whatever its τ; beside a
+    # low-pass (the drive probe) as much.
+    for stage in (SlewLimitedInput(1e6, 1e-6), SlewLimitedInput(1e6, 1e-9),
+                  ParallelInputs((LowPassInput(5e-6, 0.0), SlewLimitedInput(1e6, 5e-6, 0.0)))):
+        assert plan_factor(StepPlan(REFERENCE_SUBSTEPS), stage) == SOLVED_STAGE_FACTOR
 
 
 def test_the_reference_plan_is_the_default_profiles_on_the_protocol():
     """The unit's reference sub-steps are what the default stepping plans for the default
-    profile at the paper's protocol; a slew limit with a sub-µs small-signal time
-    constant (a sizing's start seen on a random set) plans many stage steps."""
+    profile at the paper's protocol; a stage stepped by RK4 with a sub-µs time constant
+    plans many stage steps, the tanh slew limit (exact step) none."""
     import equinox as eqx
 
     import stickslip_jax as ss
-    from stickslip_jax.model.extensions import SlewLimitedInput
+    from stickslip_jax.model.extensions import ClippedSlewInput, SlewLimitedInput
     from stickslip_jax.synthetic import paper_protocol
 
     dt = paper_protocol()[0].recording().dt
     act = ss.lu2015_slc1720()
     assert ss.plan_steps(act, dt).substeps == REFERENCE_SUBSTEPS
-    fast = eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(1e6, 0.1e-6))
+    fast = eqx.tree_at(lambda a: a.input_stage, act, ClippedSlewInput(1e6, 0.1e-6))
     plan = ss.plan_steps(fast, dt)
     assert plan_factor(plan, fast.input_stage) > 10.0
+    exact = eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(1e6, 0.1e-6))
+    plan = ss.plan_steps(exact, dt)
+    assert plan.substeps == REFERENCE_SUBSTEPS and plan.stage_substeps == 1
+    assert plan_factor(plan, exact.input_stage) == SOLVED_STAGE_FACTOR
 
 
 def test_the_default_is_about_what_540_s_allowed_on_the_protocol():

@@ -145,18 +145,18 @@ def test_a_fits_last_jacobian_recentred_is_the_jacobian_around_its_optimum(case)
 def test_a_refit_ending_where_the_simulator_cannot_step_is_set_aside_not_a_crash(
         case, monkeypatch):
     """A fit keeps its start's plan, so it can end at a model that plan under-resolves
-    and the simulator refuses (here a slew-limited drive whose time constant ran to a
-    1 ps pole): the refit says so and is set aside; the diagnosis goes on."""
+    and the simulator refuses (here a two-pole drive whose corner ran to 100 GHz): the
+    refit says so and is set aside; the diagnosis goes on."""
     from stickslip_jax.diagnose.catalogue import candidate as entry_of
     from stickslip_jax.diagnose.refit import RefitSetup, RoundStart, refit
     from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
     from stickslip_jax.diagnose.sizing import HeldSizing
-    from stickslip_jax.model.extensions import SlewLimitedInput
+    from stickslip_jax.model.extensions import SecondOrderInput
 
     recs, attached, entry_specs = case
     problem = _problem(recs)
     unsteppable = eqx.tree_at(lambda a: a.input_stage, attached,
-                              SlewLimitedInput(1e6, 1e-12))
+                              SecondOrderInput(1e11, 0.5))
     with pytest.raises(ValueError, match="pole"):
         problem.plan_factor(unsteppable)
     fits = []

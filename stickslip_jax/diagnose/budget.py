@@ -67,6 +67,7 @@ from collections.abc import Callable
 
 from ..drive_path import has_closed_form
 from ..model.base import AbstractInputStage
+from ..model.extensions import SlewLimitedInput
 from ..stepping import StepPlan
 
 DEFAULT_WORK_BUDGET = 1.0e8
@@ -90,6 +91,12 @@ once per sample interval (:mod:`stickslip_jax.drive_path`). Measured
 (``benchmarks/bench_drive_stage.py``, the 17-recording protocol, a Jacobian of 4
 columns against the same without a stage, at 4858aa4): 1.45x for a low-pass of 20, 5 or
 1 µs."""
+SOLVED_STAGE_FACTOR = 2.4
+"""How much more a sample costs with a tanh slew-limited drive stage, advanced by its
+exact step (a few Newton steps per stage time, :mod:`stickslip_jax.model.slew_exact`)
+[-]. Measured (``benchmarks/bench_drive_stage.py``, as for
+:data:`CLOSED_FORM_STAGE_FACTOR`, at its commit): Jacobians 2.13x and 2.71x for time
+constants of 1 and 0.1 µs (the low-pass's 1.43-1.87x in the same run); a line between."""
 STAGE_STEP_WEIGHT = 0.43
 """What one RK4 step of a drive stage integrated apart adds per mechanical sub-step,
 relative to the sub-step without a stage [-]: the same benchmark's 1.76x for a 60 kHz
@@ -108,8 +115,11 @@ def plan_factor(plan: StepPlan, stage: AbstractInputStage) -> float:
     factor = plan.substeps / REFERENCE_SUBSTEPS
     if stage.n_states == 0:
         return factor
-    if has_closed_form(stage) or not plan.stage_apart:
+    if not plan.stage_apart:
         return factor * CLOSED_FORM_STAGE_FACTOR
+    if has_closed_form(stage):
+        solved = any(isinstance(st, SlewLimitedInput) for st in getattr(stage, "stages", (stage,)))
+        return factor * (SOLVED_STAGE_FACTOR if solved else CLOSED_FORM_STAGE_FACTOR)
     return factor * (1.0 + STAGE_STEP_WEIGHT * plan.stage_substeps)
 
 

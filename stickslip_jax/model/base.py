@@ -204,6 +204,11 @@ class AbstractInputStage(eqx.Module):
     def voltage(self, state, u_command):
         """Voltage reaching the piezo [V]."""
 
+    @property
+    def advances_in_closed_form(self) -> bool:
+        """Whether :meth:`advance` gives the states (else RK4 steps of :meth:`rate`)."""
+        return type(self).advance is not AbstractInputStage.advance
+
     def advance(self, state, u_start, u_end, h):
         """The states after ``h`` [s] under a command linear from ``u_start`` to
         ``u_end`` [V], in closed form, for stages that have one (stable at any step: a

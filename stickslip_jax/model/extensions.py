@@ -38,6 +38,7 @@ from .base import (
     DriveContext,
     ExtensionTerms,
 )
+from .slew_exact import advance_slew_limited
 
 
 def _f(x):
@@ -145,6 +146,11 @@ class SlewLimitedInput(AbstractInputStage):
     def voltage(self, state, u_command):
         return u_command + self.mix * (state[0] - u_command)
 
+    def advance(self, state, u_start, u_end, h):
+        # Exact under a linear command (slew_exact): a sub-µs τ, where a fit may take
+        # it, costs no more than a slow one.
+        return advance_slew_limited(state, u_start, u_end, h, self.slew, self.tau)
+
 
 class ClippedSlewInput(SlewLimitedInput):
     """Slew-limited amplifier with a hard limit: ``ṡ = clip((u − s)/τ, −S, S)``.
@@ -157,6 +163,9 @@ class ClippedSlewInput(SlewLimitedInput):
 
     def rate(self, state, u_command):
         return jnp.clip((u_command - state) / self.tau, -self.slew, self.slew)
+
+    # Not the tanh form's exact step: RK4 steps of the clipped rate (it makes data).
+    advance = AbstractInputStage.advance
 
 
 class ParallelInputs(AbstractInputStage):
@@ -188,6 +197,18 @@ class ParallelInputs(AbstractInputStage):
     def voltage(self, state, u_command):
         return u_command + sum(st.voltage(s, u_command) - u_command
                                for st, s in zip(self.stages, self._split(state), strict=True))
+
+    @property
+    def advances_in_closed_form(self) -> bool:
+        return all(st.n_states == 0 or st.advances_in_closed_form for st in self.stages)
+
+    def advance(self, state, u_start, u_end, h):
+        # Each stage sees the command only, so each advances on its own.
+        if not self.advances_in_closed_form:
+            return None
+        return jnp.concatenate([jnp.atleast_1d(st.advance(s, u_start, u_end, h))
+                                for st, s in zip(self.stages, self._split(state), strict=True)
+                                if st.n_states > 0])
 
 
 # ---- extensions ---------------------------------------------------------------------
