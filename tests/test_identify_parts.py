@@ -127,6 +127,36 @@ def test_parameter_map_starts_at_the_start_and_keeps_pi_monotone():
         ParameterMap.make(act, ["mass"])
 
 
+def test_a_floored_log_parameter_stops_at_its_floor_with_its_derivative_there():
+    """A log parameter with a floor never goes below it; a map started at the floor
+    has the whole derivative there (θ = 0), none below; numpy and JAX agree."""
+    from stickslip_jax.identify.parameters import ParameterSpec
+    from stickslip_jax.model.extensions import SlewLimitedInput
+
+    act = eqx.tree_at(lambda a: a.input_stage, ss.lu2015_slc1720(),
+                      SlewLimitedInput(1e6, 5e-6))
+    spec = ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s", floor=1e-6)
+    pmap = ParameterMap.make(act, ["tau"], {"tau": spec})
+    for theta, want in ((0.5, 5e-6 * np.exp(0.5)), (-1.0, 5e-6 * np.exp(-1.0)),
+                        (-2.0, 1e-6), (-700.0, 1e-6)):
+        for xp in (np, jnp):
+            got = float(pmap.actuator(xp.asarray([theta]), xp=xp).input_stage.tau)
+            assert got == pytest.approx(want, rel=1e-14)
+    at_floor = eqx.tree_at(lambda a: a.input_stage.tau, act, jnp.asarray(1e-6))
+    fresh = ParameterMap.make(at_floor, ["tau"], {"tau": spec})
+
+    def tau(th):
+        return fresh.actuator(th).input_stage.tau
+
+    assert float(jax.grad(lambda th: tau(th)[()])(jnp.zeros(1))[0]) == pytest.approx(1e-6)
+    assert float(jax.grad(lambda th: tau(th)[()])(jnp.full(1, -0.1))[0]) == 0.0
+    np.testing.assert_allclose(fresh.free[0].derivative(np.zeros(1)), [[1e-6]])
+    np.testing.assert_allclose(fresh.free[0].derivative(np.full(1, -0.1)), [[0.0]])
+    with pytest.raises(ValueError, match="floor"):
+        ParameterMap.make(act, ["tau"], {"tau": ParameterSpec(
+            lambda a: a.input_stage.tau, "log", 1.0, "s", floor=1e-5)})
+
+
 def test_a_pi_partial_sum_at_rounding_level_is_lifted_a_folded_loop_is_refused():
     # set_10 from the profile: after a 75-step polish one partial sum of the PI
     # weights rounded to ≤ 0 and the diagnosis stopped with "not monotone".

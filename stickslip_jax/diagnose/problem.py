@@ -400,10 +400,12 @@ class Problem:
 
         Raises ValueError where it starts at, or ends at, a model the simulator cannot
         step on these data: a fit keeps the plan of its start, so it can walk into
-        models that plan under-resolves (a slew-limited drive whose time constant ran
-        to a pole at 100 MHz, costed at the tens of stage steps per gap it started
-        with); the cost it reports there is the coarse plan's, not the model's, and
-        nothing after it could simulate that model.
+        models that plan under-resolves (seen: a slew-limited drive whose time constant
+        ran to a pole at 100 MHz when that stage took RK4 steps, costed at the tens of
+        stage steps per gap it started with; it advances exactly since 0932ae1, but a
+        two-pole drive or a structural mode can still walk so); the cost it reports
+        there is the coarse plan's, not the model's, and nothing after it could
+        simulate that model.
 
         ``reserve`` (a budgeted refit; None: not budgeted): raises
         :class:`OverBudget` before the second stage when that stage, at ``max_steps``

@@ -217,7 +217,8 @@ def _locate(problem: Problem, q0: np.ndarray):
     mismatch = mismatch_entries(analyses)
     hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas),
              "max_slew_V_s": max(float(np.max(np.abs(np.diff(r.voltage_V)))) / r.dt
-                                 for r in data.recordings)}
+                                 for r in data.recordings),
+             "sample_interval_s": min(float(r.dt) for r in data.recordings)}
     return analyses, mismatch, hints
 
 

@@ -117,13 +117,18 @@ class ParameterSpec:
     ``getter`` selects the leaf in the :class:`Actuator`; ``kind`` is one of ``log``,
     ``softplus`` (non-negative, may start at 0), ``linear`` (signed:
     ``value = start + scale·θ``); ``scale`` sets the θ unit of ``linear`` and
-    ``softplus`` parameters [parameter unit]; ``unit`` is for reports.
+    ``softplus`` parameters [parameter unit]; ``unit`` is for reports. ``floor`` (``log``
+    only; 0: none) [parameter unit]: the value is ``max(start·e^θ, floor)``, for a
+    quantity the data cannot resolve below it and whose derivatives vanish on the way
+    to 0 (a fit walks such a one off the scale, and no later fit can bring it back;
+    one that starts at the floor has its derivative there).
     """
 
     getter: Callable[[Actuator], jax.Array]
     kind: str = "log"
     scale: float = 1.0
     unit: str = "-"
+    floor: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -135,6 +140,7 @@ class FreeParameter:
     size: int
     start: np.ndarray  # physical start value(s)
     scale: float | None = None  # θ unit of linear/softplus kinds
+    floor: float = 0.0  # least value of a log kind (ParameterSpec)
 
     def _softplus_scale(self) -> tuple[float, float]:
         """``(scale, θ0)`` of the softplus kind: value = scale·softplus(θ + θ0)."""
@@ -160,6 +166,10 @@ class FreeParameter:
         theta = xp.asarray(theta)
         if self.kind == "log":
             value = start * xp.exp(theta)
+            if self.floor > 0:
+                # where, not maximum: the derivative is whole at the floor itself, where
+                # a fit that starts there must see it.
+                value = xp.where(value >= self.floor, value, self.floor)
         elif self.kind == "logit":
             value = _sigmoid(theta + xp.log(start / (1.0 - start)), xp)
         elif self.kind == "linear":
@@ -187,7 +197,8 @@ class FreeParameter:
         theta = np.atleast_1d(np.asarray(theta, dtype=float))
         start = np.atleast_1d(np.asarray(self.start, dtype=float))
         if self.kind == "log":
-            return np.diag(start * np.exp(theta))
+            value = start * np.exp(theta)
+            return np.diag(np.where(value >= self.floor, value, 0.0))
         if self.kind == "logit":
             s = _sigmoid(theta + np.log(start / (1.0 - start)), np)
             return np.diag(s * (1.0 - s))
@@ -255,13 +266,17 @@ class ParameterMap(eqx.Module):
             getters.append(getter)
             value = np.asarray(getter(start), dtype=float)
             kind, scale = (spec.kind, spec.scale) if spec else _kind(name, start)
+            floor = float(spec.floor) if spec else 0.0
             if kind == "log" and np.any(value <= 0):
                 raise ValueError(f"{name} must start positive to be fitted, got {value}")
+            if floor > 0 and (kind != "log" or np.any(value < floor)):
+                raise ValueError(f"{name}: a floor is for a log parameter starting at or "
+                                 f"above it, got kind {kind!r}, start {value}, floor {floor}")
             if kind == "pi_cumlog":
                 value = monotone_pi_start(value)
             if kind == "logit" and not 0 < float(value) < 1:
                 raise ValueError(f"{name} must start inside (0, 1) to be fitted, got {value}")
-            free.append(FreeParameter(name, kind, int(value.size), value, scale))
+            free.append(FreeParameter(name, kind, int(value.size), value, scale, floor))
         return ParameterMap(start, tuple(free), tuple(getters))
 
     @property

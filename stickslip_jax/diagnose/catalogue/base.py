@@ -62,7 +62,8 @@ class CatalogueEntry(abc.ABC):
         """Zero-strength versions of the effect on ``act``, one per setting of its
         nonlinear parameter; ``hints`` what the located residual suggests
         (``peaks_Hz``: shared residual peaks [Hz]; ``max_slew_V_s``: the fastest
-        voltage slope of the commands [V/s]; either may be missing)."""
+        voltage slope of the commands [V/s]; ``sample_interval_s``: the shortest
+        sample interval [s]; any may be missing)."""
 
     @abc.abstractmethod
     def attach(self, act: Actuator, strength: float,

@@ -22,8 +22,15 @@ from .slots import carry_input_stage
 PROBE_TAU_DRIVE = 20e-6
 """Time constant [s] of the drive low-pass probe; its strength is the mix."""
 PROBE_TAU_SLEW = 5e-6
-"""Small-signal time constant [s] of the slew-limit probe (above the RK4 stability
-limit of the default sub-step, 2.5 µs at 25 kHz)."""
+"""Small-signal time constant [s] of the slew-limit probe (chosen above the RK4
+stability limit of the default sub-step, 2.5 µs at 25 kHz, when the stage took RK4
+steps; it now advances exactly, :mod:`stickslip_jax.model.slew_exact`)."""
+SLEW_TAU_FLOOR_SHARE = 0.01
+"""Least small-signal time constant a refit gives the slew limit, as a share of the
+shortest sample interval [-]. A stage that settles within a hundredth of a sample is
+seen by the data through its slew rate alone: its time constant is unresolved below,
+and towards 0 the tanh becomes a sign and the derivatives in τ vanish (a fit walked it
+from 5 µs to 1e-280 s on 40 µs samples, where no later fit could move it)."""
 
 
 @final
@@ -70,7 +77,9 @@ class DriveBandwidthEntry(CatalogueEntry):
             probes.append(Probe(f"drive slew limit {slew * 1e-6:.3g} V/us",
                                 install(SlewLimitedInput(slew, PROBE_TAU_SLEW, 0.0)), mix(1),
                                 +1, {"form": "slew", "slew": slew, "tau": PROBE_TAU_SLEW,
-                                     "max_slew": top}))
+                                     "max_slew": top,
+                                     "tau_floor": SLEW_TAU_FLOOR_SHARE
+                                     * float(hints.get("sample_interval_s", 0.0))}))
         return probes
 
     def attach(self, act, strength, probe):
@@ -94,7 +103,9 @@ class DriveBandwidthEntry(CatalogueEntry):
         new = eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(slew, st["tau"]))
         return new, {"drive_slew": ParameterSpec(lambda a: a.input_stage.slew, "log", 1.0,
                                                  "V/s"),
-                     "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s")}
+                     "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s",
+                                                floor=min(st.get("tau_floor", 0.0),
+                                                          st["tau"]))}
 
     def seeds(self, act):
         """Under-damped two-pole amplifiers over 3-20 kHz and damping 0.3-0.7: a step
