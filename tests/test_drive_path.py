@@ -107,8 +107,9 @@ def saw():
     return rec, jnp.asarray(rec.voltage_V)
 
 
-@pytest.mark.parametrize("stage", [LowPassInput(1e-6), SecondOrderInput(60e3, 0.5)],
-                         ids=["low_pass_1us", "two_pole_60kHz"])
+@pytest.mark.parametrize("stage", [LowPassInput(1e-6), SecondOrderInput(60e3, 0.5),
+                                   ss.SlewLimitedInput(0.4e6, 0.2e-6)],
+                         ids=["low_pass_1us", "two_pole_60kHz", "slew_0.2us_exact"])
 def test_trace_matches_a_finely_stepped_reference(saw, stage):
     """Default stepping against the reference stepping (16x shorter steps, each pole
     resolved): within 0.05 nm RMS on a 500 Hz sawtooth, where the stage itself moves

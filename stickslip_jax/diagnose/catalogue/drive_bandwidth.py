@@ -27,10 +27,16 @@ stability limit of the default sub-step, 2.5 µs at 25 kHz, when the stage took 
 steps; it now advances exactly, :mod:`stickslip_jax.model.slew_exact`)."""
 SLEW_TAU_FLOOR_SHARE = 0.01
 """Least small-signal time constant a refit gives the slew limit, as a share of the
-shortest sample interval [-]. A stage that settles within a hundredth of a sample is
-seen by the data through its slew rate alone: its time constant is unresolved below,
-and towards 0 the tanh becomes a sign and the derivatives in τ vanish (a fit walked it
-from 5 µs to 1e-280 s on 40 µs samples, where no later fit could move it)."""
+shortest sample interval [-]. Towards τ = 0 the tanh becomes a sign and the derivatives
+in τ vanish: a fit walked it from 5 µs to 1e-280 s on 40 µs samples, where no later
+fit could move it. A judgment, not a resolution limit: the data see τ mostly as the
+stage's steady lag on a ramp (slope·τ), which stays visible below a hundredth of a
+sample on fast ramps. The floor also acts as where the held sizing leaves τ (it walks
+to the floor with the baseline held), so the refit's start: from a thousandth, one
+concealed set's drive refit stalled near the floor (1.23e5 against 80 669 from a
+hundredth) and a dev set's reached a better fit below a hundredth (27 847 against
+35 405). Neither is a reason for a value (benchmarks/README, "The slew limit's exact
+step")."""
 
 
 @final
