@@ -12,7 +12,12 @@ import stickslip_jax as ss
 from stickslip_jax.drive_path import grid_points, has_closed_form, stage_table
 from stickslip_jax.model.base import AbstractInputStage
 from stickslip_jax.model.extensions import LowPassInput, SlewLimitedInput
-from stickslip_jax.model.slew_exact import advance_slew_limited, slew_lag_after
+from stickslip_jax.model.slew_exact import (
+    MAX_ITERATIONS,
+    advance_slew_limited,
+    lag_and_steps,
+    slew_lag_after,
+)
 from stickslip_jax.synthetic import DriveSpec
 
 
@@ -49,6 +54,10 @@ ELAPSED = (0.01, 0.3, 2.0, 10.0)
 def test_the_exact_lag_matches_fine_rk4_in_both_regimes():
     b, x0, t = (np.asarray(v).ravel() for v in np.meshgrid(BETAS, LAGS, ELAPSED, indexing="ij"))
     exact = np.asarray(jax.jit(slew_lag_after)(jnp.asarray(x0), jnp.asarray(b), jnp.asarray(t)))
+    # Every element's solve converged by its tolerance, well before the step cap.
+    steps = np.asarray(jax.jit(jax.vmap(lambda *v: lag_and_steps(*v)[1]))(
+        jnp.asarray(x0), jnp.asarray(b), jnp.asarray(t)))
+    assert steps.max() < MAX_ITERATIONS // 2
     ref = rk4_lag(x0, b, t)
     np.testing.assert_allclose(exact, ref, rtol=0, atol=1e-10 * (1 + np.abs(ref)).max())
     # Slower than the slew rate, the lag stays on its side of atanh β; faster, it grows.

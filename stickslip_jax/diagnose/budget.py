@@ -67,7 +67,7 @@ from collections.abc import Callable
 
 from ..drive_path import has_closed_form
 from ..model.base import AbstractInputStage
-from ..model.extensions import SlewLimitedInput
+from ..model.extensions import ParallelInputs, SlewLimitedInput
 from ..stepping import StepPlan
 
 DEFAULT_WORK_BUDGET = 1.0e8
@@ -118,7 +118,8 @@ def plan_factor(plan: StepPlan, stage: AbstractInputStage) -> float:
     if not plan.stage_apart:
         return factor * CLOSED_FORM_STAGE_FACTOR
     if has_closed_form(stage):
-        solved = any(isinstance(st, SlewLimitedInput) for st in getattr(stage, "stages", (stage,)))
+        members = stage.stages if isinstance(stage, ParallelInputs) else (stage,)
+        solved = any(isinstance(st, SlewLimitedInput) for st in members)
         return factor * (SOLVED_STAGE_FACTOR if solved else CLOSED_FORM_STAGE_FACTOR)
     return factor * (1.0 + STAGE_STEP_WEIGHT * plan.stage_substeps)
 

@@ -25,7 +25,8 @@ nothing cancels:
 
 Either equation is solved by Newton steps kept inside a bracket that the regime's rate
 bounds give (bisection where a step leaves it), until a step moves the root by less
-than ``1e-13`` relative, at most :data:`MAX_ITERATIONS` steps: a count, never a time.
+than ``1e-13`` relative or the two sides agree to rounding, at most
+:data:`MAX_ITERATIONS` steps: a count, never a time.
 The derivative comes from one more Newton step taken with the parameters live (the
 implicit function theorem at the converged root), so no derivative flows through the
 iterations. ``|β| = 1`` (a ramp exactly at the slew rate) is the removable singularity
@@ -52,6 +53,7 @@ RELATIVE_TOLERANCE = 1e-13
 """A solve has converged when a step moves the root by less than this times
 ``1 + |root|`` [-]."""
 _TINY = 1e-300
+_ROUNDING = 8 * float(np.finfo(float).eps)
 _LN2 = float(np.log(2.0))
 
 
@@ -107,9 +109,12 @@ def _solve_increasing(f, param, target, lo, hi, start):
         lo = jnp.where(r < 0, z, lo)
         hi = jnp.where(r > 0, z, hi)
         step = r / slope
-        # A step below the tolerance is the last one, wherever rounding puts it; a
-        # larger one outside the bracket (or NaN) becomes a bisection.
-        done = jnp.abs(step) <= RELATIVE_TOLERANCE * (1 + jnp.abs(z))
+        # A step below the tolerance, or a residual at the rounding of the two sides
+        # (near |β| = 1 the slope is ~1e-4 and the step cannot get below the tolerance),
+        # is the last one, wherever rounding puts it; a larger one outside the bracket
+        # (or NaN) becomes a bisection.
+        done = ((jnp.abs(step) <= RELATIVE_TOLERANCE * (1 + jnp.abs(z)))
+                | (jnp.abs(r) <= _ROUNDING * (jnp.abs(value) + jnp.abs(t))))
         new = z - step
         inside = (new >= lo) & (new <= hi)
         new = jnp.where(done | inside, new, 0.5 * (lo + hi))
@@ -137,11 +142,11 @@ def _relaxing_setup(x0, beta, elapsed):
     target = _relaxing(log_a0, c)[0] - (1 - beta**2) * elapsed
     # d(ln a)/d(t/τ) ≥ −(1 + |β|) (the slope of the left side in ln a is ≥ 1 − |β|), and
     # a falls at most at the saturated rate 1 − c.
-    lo = log_a0 - (1 + jnp.abs(beta)) * elapsed
+    by_rate = log_a0 - (1 + jnp.abs(beta)) * elapsed
     least = a0 - (1 - c) * elapsed
-    floor = jnp.where(least > 0, jnp.log(jnp.maximum(least, _TINY)), lo)
-    lo = jnp.maximum(lo, floor)
-    start = jnp.maximum(log_a0 - (1 - beta**2) * elapsed, floor)
+    lo = jnp.where(least > 0, jnp.maximum(by_rate, jnp.log(jnp.maximum(least, _TINY))),
+                   by_rate)
+    start = jnp.maximum(log_a0 - (1 - beta**2) * elapsed, lo)
     return (c, target, lo, log_a0, start), lambda log_a: x_eq + sign * jnp.exp(log_a)
 
 
