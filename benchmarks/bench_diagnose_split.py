@@ -169,6 +169,8 @@ def summary(rows: list[dict]) -> dict:
     named = [r for r in rows if r["named"]]
     walls = [r["wall_s"] for r in rows]
     compiles = [r["compile_s"] for r in rows if "compile_s" in r]  # rows since 36a7ecd
+    worked = [r for r in rows if _work_spent(r) is not None]
+    works = [_work_spent(r) for r in worked]
     m = confusion(rows)
     return {
         "sets": len(rows),
@@ -198,11 +200,26 @@ def summary(rows: list[dict]) -> dict:
         "detection_vs_beyond_to_noise": detection_bins(rows, "beyond_to_noise"),
         "wall_s": {"mean": float(np.mean(walls)), "median": float(np.median(walls)),
                    "max": float(np.max(walls))} if walls else None,
+        # Counted work (sample-evaluations): what bounds a diagnosis, the same on any
+        # machine and under any load, unlike the wall time.
+        "work": {"median": float(np.median(works)), "max": float(np.max(works)),
+                 "over_budget": sum(_work_spent(r) > _work_total(r) for r in worked)}
+        if works else None,
         "compile_share": (float(np.median(np.array(compiles) / np.array(walls)))
                           if compiles and len(compiles) == len(walls) else None),
         "confusion": m,
         "confusion_markdown": confusion_markdown(m),
     }
+
+
+def _work_spent(row: dict) -> float | None:
+    """The sample-evaluations a set's diagnosis spent (rows since ec4632c), or None."""
+    wb = row.get("work_budget")
+    return float(wb["spent"]) if isinstance(wb, dict) and "spent" in wb else None
+
+
+def _work_total(row: dict) -> float:
+    return float(row["work_budget"].get("total") or np.inf)
 
 
 def _pct(r: dict) -> str:
@@ -211,15 +228,17 @@ def _pct(r: dict) -> str:
 
 def print_summary(rows: list[dict], s: dict) -> None:
     print("\n| set | hidden | form | cat. form | effect/noise (beyond) | noise | verdict | "
-          "named | NRMSE before → after | excess removed | wall |")
-    print("|---" * 11 + "|")
+          "named | NRMSE before → after | excess removed | work [1e6] | wall |")
+    print("|---" * 12 + "|")
     for r in sorted(rows, key=lambda r: r["index"]):
         ex = "" if r["excess_removed"] is None else f"{100 * r['excess_removed']:.0f} %"
+        spent = _work_spent(r)
+        work = "" if spent is None else f"{spent / 1e6:.1f}"
         print(f"| {r['set']} | {r['hidden']} | {r['form']} | {'yes' if r['catalogue_form'] else ''}"
               f" | {r['effect_to_noise']:.2g} ({r['beyond_to_noise']:.2g}) | "
               f"{r['noise_nm']:.2f} nm | {r['verdict']} | {', '.join(r['named']) or '-'} | "
               f"{100 * r['nrmse_before']:.4f} → {100 * r['nrmse_after']:.4f} % | {ex} | "
-              f"{r['wall_s']:.0f} s |")
+              f"{work} | {r['wall_s']:.0f} s |")
     print("\n" + s["confusion_markdown"] + "\n")
     for k in ("null_false_positives", "null_unexplained", "wrong_name_first", "wrong_name_any",
               "right_first", "right_first_above_limit", "flagged_below_limit",
@@ -237,6 +256,10 @@ def print_summary(rows: list[dict], s: dict) -> None:
         w = s["wall_s"]
         print(f"- diagnose wall time per set: mean {w['mean']:.0f} s, median "
               f"{w['median']:.0f} s, max {w['max']:.0f} s")
+    if s.get("work"):
+        w = s["work"]
+        print(f"- counted work per set: median {w['median']:.3g}, max {w['max']:.3g} "
+              f"sample-evaluations; {w['over_budget']} set(s) past the work budget")
     if s.get("compile_share") is not None:
         print(f"- XLA tracing and compiling, median share of a set's wall time: "
               f"{100 * s['compile_share']:.0f} %")
