@@ -196,13 +196,14 @@ def main() -> None:
                                               "nrmse_before", "nrmse_after", "wall_s")}),
               flush=True)
     print("\n| set | hidden effect | named first | verdict | NRMSE before | NRMSE after | "
-          "floor | excess removed | wall |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "floor | excess removed | work [1e6] | wall |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         ex = "" if r["excess_removed"] is None else f"{100 * r['excess_removed']:.0f} %"
+        work = f"{r['work_budget']['spent'] / 1e6:.1f}" if r.get("work_budget") else ""
         print(f"| {r['set']} | {r['hidden']} | {r['first']} | {r['verdict']} | "
               f"{100 * r['nrmse_before']:.4f} % | {100 * r['nrmse_after']:.4f} % | "
-              f"{100 * r['noise_floor_nrmse']:.4f} % | {ex} | {r['wall_s']:.0f} s |")
+              f"{100 * r['noise_floor_nrmse']:.4f} % | {ex} | {work} | {r['wall_s']:.0f} s |")
     sys.exit(0)
 
 

@@ -89,7 +89,8 @@ the update changes its path, not the point it accepts. The dynamics step, with a
 direction the step response leaves flat (the piezo's mass), keeps the classical update:
 Nielsen's runs further along it. The diagnosis's fits keep the classical update too:
 with Nielsen's (tried at 5d65386) their 15-step sizings ended elsewhere, which
-reordered near-tied entries on the frozen test split (benchmarks/README.md)."""
+reordered near-tied entries on the frozen test split (7955ad4's run, reverted by
+5ebda14 and 74f3e49; benchmarks/results/diagnose_test_split_7955ad4.json)."""
 STEP_SOLVE = {
     "hysteresis": dict(initial_damping=1e-6),
     "friction": dict(initial_damping=1e-3),
