@@ -245,13 +245,17 @@ def print_summary(rows: list[dict], s: dict) -> None:
               "right_first_catalogue_form", "right_first_other_form",
               "uncatalogued_unexplained", "excess_halved_where_named"):
         print(f"- {k.replace('_', ' ')}: {_pct(s[k])}")
-    for key, what in (("detection_vs_effect_to_noise", "effect size / noise"),
-                      ("detection_vs_beyond_to_noise",
-                       "effect beyond the baseline's first-order absorption / noise")):
-        print(f"- detection against {what} (right first | flagged):")
-        for b in s[key]:
-            print(f"  [{b['bin'][0]:g}, {b['bin'][1]:g}): {_pct(b['right_first'])} | "
-                  f"{_pct(b['flagged'])}")
+    print("\nDetection (right first: sets hiding a catalogue entry; flagged: any verdict "
+          "but adequate, uncatalogued sets included):\n")
+    print("| effect / noise | right first | flagged | beyond / noise | right first | "
+          "flagged |")
+    print("|---" * 6 + "|")
+    for whole, beyond in zip(s["detection_vs_effect_to_noise"],
+                             s["detection_vs_beyond_to_noise"], strict=True):
+        print(" | ".join(["", *(f"[{b['bin'][0]:g}, {b['bin'][1]:g}) | "
+                                f"{_pct(b['right_first'])} | {_pct(b['flagged'])}"
+                                for b in (whole, beyond)), ""]).strip())
+    print()
     if s["wall_s"]:
         w = s["wall_s"]
         print(f"- diagnose wall time per set: mean {w['mean']:.0f} s, median "
