@@ -17,17 +17,16 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 import stickslip_jax as ss
 from stickslip_jax.diagnose import budget
+from stickslip_jax.diagnose.problem import segment_work
 from stickslip_jax.identify.steps import identify
 from stickslip_jax.testing import random_sets as rs
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_diagnose import protocol  # noqa: E402
+from bench_diagnose_split import SEEDS  # noqa: E402
 
-SEEDS = {"dev": rs.DEV_SEED, "test": rs.TEST_SEED}
 PIEZO = ("Mp", "Dp", "Kp", "Ds", "rho0", "z_ba_forward", "z_ba_backward")
 
 
@@ -50,20 +49,13 @@ def main() -> None:
                      steps=("dynamics", "hysteresis", "friction", "joint"),
                      echo=lambda s: None if "accepted" in s else print("   ", s, flush=True))
     print(f"wall {time.perf_counter() - t0:.1f} s")
-    lengths = {r.name: len(r.time_s) for r in recs}
     stage = ident.actuator.input_stage
     total = 0.0
-    for st in ident.steps:
-        if st.result is None:
-            continue
-        samples = len(st.recordings) * max(lengths[n] for n in st.recordings)
-        columns = int(np.size(st.result.theta))
-        for seg in st.segments:
-            work = budget.solve_work(samples, columns, seg,
-                                     budget.plan_factor(seg.plan, stage))
-            total += work
-            print(f"{st.name:11s} sub-steps {seg.plan.substeps:4d}  Jacobians "
-                  f"{seg.jacobians:3d}  values {seg.values:3d}  work {work:.3g}")
+    for st, seg, work in segment_work(ident, ident.data,
+                                      lambda plan: budget.plan_factor(plan, stage)):
+        total += work
+        print(f"{st.name:11s} sub-steps {seg.plan.substeps:4d}  Jacobians "
+              f"{seg.jacobians:3d}  values {seg.values:3d}  work {work:.3g}")
     print(f"steps' work {total:.3g} sample-evaluations")
     truth = spec.truth
     found = ident.uncertainty.as_dict() if ident.uncertainty is not None else {}

@@ -451,6 +451,23 @@ HELD_FIRST = ("pi_weights",)
 """Quantities a refit (:meth:`Problem.refit`) holds in its first stage."""
 
 
+def segment_work(ident, data: Dataset, factor: Callable[[StepPlan], float]):
+    """Each stretch of each step of the identification ``ident`` with its work
+    [sample-evaluations]: ``(step, segment, work)`` in the order they ran, a step's
+    evaluations on its recordings (padded to the longest of them) with its free
+    parameters (:func:`~.budget.solve_work`) at the plan the segment ran at
+    (``factor``: the :func:`~.budget.plan_factor` of a plan)."""
+    lengths = {r.name: len(r.time_s) for r in data.recordings}
+    for st in ident.steps:
+        if st.result is None or not st.recordings:
+            continue
+        samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
+                                           for n in st.recordings)
+        columns = int(np.size(st.result.theta))
+        for seg in st.segments:  # counts its evaluations as a solve result does
+            yield st, seg, solve_work(samples, columns, seg, factor(seg.plan))
+
+
 def identification_work(ident, data: Dataset, factor: Callable[[StepPlan], float]) -> float:
     """The work of an identification [sample-evaluations]: its steps, from the
     evaluations each made on its recordings (padded to the longest of them) with its
@@ -464,18 +481,11 @@ def identification_work(ident, data: Dataset, factor: Callable[[StepPlan], float
     ``factor``: the :func:`~.budget.plan_factor` of a plan for the identified model's
     drive stage (:meth:`Problem.identification_work` binds :meth:`Problem.plan_factor`
     of the start)."""
-    lengths = {r.name: len(r.time_s) for r in data.recordings}
-    work, last = 0.0, 0
-    for st in ident.steps:
-        if st.result is None or not st.recordings:
-            continue
-        samples = len(st.recordings) * max(lengths.get(n, data.mask.shape[1])
-                                           for n in st.recordings)
-        last = int(np.size(st.result.theta))
-        # A segment counts its evaluations as a solve result does.
-        work += sum(solve_work(samples, last, seg, factor(seg.plan)) for seg in st.segments)
+    work = sum(spent for _, _, spent in segment_work(ident, data, factor))
     if ident.plan is None:
         return work
+    fitted = [st for st in ident.steps if st.result is not None and st.recordings]
+    last = int(np.size(fitted[-1].result.theta)) if fitted else 0
     columns = last if ident.uncertainty is not None else 0
     final = factor(ident.plan)
     return (work + evaluation_work(int(data.mask.size), columns, final)
