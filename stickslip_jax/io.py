@@ -119,6 +119,15 @@ class RecordingError(ValueError):
         return (type(self), (self.path, self.line, self.problem, self.fix))
 
 
+class RecordingErrors(ValueError):
+    """Several recordings break the file contract; ``errors``: one
+    :class:`RecordingError` per file, each on its own line."""
+
+    def __init__(self, errors):
+        self.errors = list(errors)
+        super().__init__("\n".join(str(e) for e in self.errors))
+
+
 # ------------------------------------------------------------------------ metadata
 
 

@@ -36,7 +36,8 @@ from .model.slider import Slider
 
 __all__ = ["COMMON_REQUIRED", "COMMON_OPTIONAL", "DEFAULT_FRICTION", "FRICTION_LAWS",
            "ParameterError", "actuator_from_params", "allowed_names", "describe_parameters",
-           "load_params", "params_from_actuator", "parameter_docs", "save_params"]
+           "fit_status_of", "load_params", "params_from_actuator", "parameter_docs",
+           "save_params"]
 
 DEFAULT_FRICTION = "elastoplastic"
 """The law of a file without ``"friction"``."""
@@ -58,7 +59,11 @@ ACTUATOR_SCALARS = (
 """The actuator's scalar parameters outside the friction law (bounds, defaults, docs)."""
 
 COMMON_REQUIRED = ("Mp", "Dp", "Kp", "Ms", "Ds", "pi_thresholds", "pi_weights")
-COMMON_OPTIONAL = {"Kact2": 0.0, "N": 0.0, "F_ext": 0.0, "k_load": 0.0, "friction": None}
+COMMON_OPTIONAL = {"Kact2": 0.0, "N": 0.0, "F_ext": 0.0, "k_load": 0.0, "friction": None,
+                   "fit_status": None}
+FIT_STATUS_DOC = ("how the identification that wrote the file judged its fit (only "
+                  "written when it is not a plain result, e.g. 'misspecified: ...'); "
+                  "metadata: no physics reads it")
 _VECTOR_DOCS = {
     "pi_thresholds": "Prandtl-Ishlinskii play thresholds, ascending [V]",
     "pi_weights": "Prandtl-Ishlinskii weights [m/V]",
@@ -77,6 +82,7 @@ def parameter_docs() -> dict[str, dict[str, str]]:
     common.update(_VECTOR_DOCS)
     common.update({p.name: p.described for p in ACTUATOR_SCALARS[5:]})
     common["friction"] = _friction_doc()
+    common["fit_status"] = FIT_STATUS_DOC
     out = {"": common}
     for name, law in FRICTION_LAWS.items():
         out[name] = {p.name: p.described for p in law.parameters}
@@ -136,6 +142,9 @@ def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None
             f"unknown parameter name(s) {', '.join(map(repr, unknown))} for friction "
             f"{friction!r}.", source=source,
             fix=f"check the spelling; allowed names are: {', '.join(allowed)}.")
+    if not isinstance(params.get("fit_status", ""), str):
+        raise ParameterError("'fit_status' must be a string.", source=source,
+                             fix="remove it, or write the fit's verdict as text.")
     missing = [k for k in COMMON_REQUIRED if k not in params]
     missing += missing_law_parameters(law, params)
     if missing:
@@ -198,8 +207,24 @@ def load_params(path: str | Path) -> Actuator:
 
 
 def save_params(actuator: Actuator, path: str | Path, *, force: bool = False,
-                inputs=()) -> Path:
-    """Write an actuator's parameters as JSON (atomic; no overwrite without ``force``)."""
+                inputs=(), fit_status: str | None = None) -> Path:
+    """Write an actuator's parameters as JSON (atomic; no overwrite without ``force``);
+    ``fit_status`` (e.g. ``"misspecified: ..."``) marks parameters that are not a plain
+    result (:func:`fit_status_of` reads it back)."""
     path = check_output_path(path, force=force, inputs=inputs)
-    atomic_write_text(path, json.dumps(params_from_actuator(actuator), indent=1) + "\n")
+    content = params_from_actuator(actuator)
+    if fit_status:
+        content = {"fit_status": fit_status, **content}
+    atomic_write_text(path, json.dumps(content, indent=1) + "\n")
     return path
+
+
+def fit_status_of(path: str | Path) -> str | None:
+    """The ``fit_status`` mark of a parameter file (None: unmarked or unreadable; the
+    loader reports what is wrong with a file)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    status = data.get("fit_status") if isinstance(data, dict) else None
+    return status if isinstance(status, str) and status else None

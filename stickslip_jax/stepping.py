@@ -75,8 +75,14 @@ stick-slip actuator rings at a megahertz, a parameter read in the wrong unit doe
 
 MAX_SUBSTEPS_PER_CALL = 400_000_000
 """Refuse a simulation that would take more coarse sub-steps than this (all rows of a
-batch together): at about 0.1 µs each that is a minute, and more usually means a unit
-slip in a parameter (a stiffness per µm read per m)."""
+batch together): at about 0.1 µs each that is a minute. Many sub-steps per sample usually
+mean a unit slip in a parameter (a stiffness per µm read per m); an ordinary count over
+too many samples means a job too large (the message says which)."""
+
+TYPICAL_MODE_HZ = 1e5
+"""A fastest mode above this [Hz] makes a refusal for too much work blame the model's
+time scale (a unit slip?) rather than the job's size: stick-slip actuators' stick modes
+lie at kHz to tens of kHz (the default profile's, 17.5 kHz)."""
 
 
 MAX_STAGE_STEPS = 1024
@@ -325,6 +331,45 @@ class Stepping(eqx.Module):
                 "slip (a time constant in µs read as s)?")
         return steps
 
+    def _too_much_work(self, actuator: Actuator, rates: _RestRates | None, n: int,
+                       samples: int, step: float, dt: float) -> str:
+        """Why a call of ``samples`` intervals at ``n`` sub-steps each passes
+        :data:`MAX_SUBSTEPS_PER_CALL`: too many sub-steps per sample (a short step: the
+        model's time scale, where a unit slip is the usual cause, or a step given too
+        short), or too many in all (an ordinary step, a job too large)."""
+        total = (f"{samples:,} sample intervals × {n} sub-steps = {n * samples:.3g} "
+                 f"sub-steps, above the limit of {MAX_SUBSTEPS_PER_CALL:.3g} per call")
+        if self.substeps is not None:
+            return (f"too many sub-steps in all: {total} ({n} per sample as given). Fix: "
+                    "fewer sub-steps per sample, or fewer samples.")
+        if self.max_step is not None:
+            return (f"too many sub-steps per sample: the given longest step of "
+                    f"{step * 1e9:.3g} ns cuts each {dt * 1e6:.3g} µs sample into {n}; "
+                    f"{total}. Fix: a longer max_step (or none: the model's own step), or "
+                    "fewer samples.")
+        rate = None if rates is None else (rates.mechanical if self.stage_apart
+                                           else rates.fastest)
+        mode_hz = None if rate is None else rate / (2 * math.pi)
+        if mode_hz is not None and mode_hz > TYPICAL_MODE_HZ:
+            return (f"too many sub-steps per sample: the model's fastest mode is "
+                    f"{mode_hz:.3g} Hz ({time_scale_report(actuator)}), so each "
+                    f"{dt * 1e6:.3g} µs sample takes {n} sub-steps of {step * 1e9:.3g} ns; "
+                    f"{total}. A mode far above {TYPICAL_MODE_HZ / 1e3:g} kHz usually "
+                    "means a unit slip (Kp in N/µm read as N/m, Mp in g read as kg); if "
+                    "it is meant, simulate fewer samples.")
+        # An ordinary time scale: the job itself is too large. A lower sample rate only
+        # helps where each sample takes one sub-step (the samples, not the model's step,
+        # then set the count).
+        rate_hint = (", or a lower sample rate (one sub-step per sample: the samples set "
+                     "the work)" if n == 1 else
+                     f" (a lower sample rate would not help: the model's {step * 1e9:.3g} "
+                     f"ns step sets the work)")
+        where = ("" if mode_hz is None else
+                 f"; the model's fastest mode, {mode_hz:.3g} Hz, is ordinary")
+        return (f"too many sub-steps in all: the job is too large: {total}{where}. Fix: "
+                f"simulate fewer samples: fewer rows or grid points, fewer periods, a "
+                f"shorter duration{rate_hint}.")
+
     def plan(self, actuator: Actuator, dt, *, samples: int | None = None) -> StepPlan:
         """The static :class:`StepPlan` for ``actuator`` sampled every ``dt`` [s] (one
         value, or one per row of a batch: the longest sets the sub-step count).
@@ -345,15 +390,8 @@ class Stepping(eqx.Module):
         else:
             n = max(1, math.ceil(dt_max / step * (1 - 1e-12)))
         if samples is not None and n * samples > MAX_SUBSTEPS_PER_CALL:
-            detail = time_scale_report(actuator) if _concrete(actuator) else ""
-            raise SteppingError(
-                f"this simulation needs {n} sub-steps per sample ({n * samples:.3g} in all, "
-                f"limit {MAX_SUBSTEPS_PER_CALL:.3g}): the step is {step * 1e9:.3g} ns for "
-                f"the model's fastest time scale"
-                + (f" ({detail})" if detail else "")
-                + ". A natural frequency far above 100 kHz usually means a unit slip "
-                "(Kp in N/µm read as N/m, Mp in g read as kg)."
-            )
+            raise SteppingError(self._too_much_work(actuator, rates, n, samples, step,
+                                                    dt_max))
         gap = dt_max / n * float(np.max(np.diff(self.solver.stage_times)))
         return StepPlan(n, self.refine, self.tolerance, self.radians_per_step, self.solver,
                         self._stage_steps(actuator, gap, rates), self.stage_apart)

@@ -324,7 +324,7 @@ def test_verdicts_and_statuses_keep_their_strings():
 
 def _significance():
     """The tolerance of N samples in four recordings, noise estimates 1 % uncertain."""
-    from stickslip_jax.diagnose.significance import Significance
+    from stickslip_jax.significance import Significance
 
     return Significance(np.full(4, N / 4), np.full(4, 1e-9), np.full(4, 0.01),
                         np.zeros(4), 3.0)

@@ -258,15 +258,18 @@ def test_sines_alone_exit_3_for_all_steps_and_fit_with_steps_hysteresis(fixtures
     out = tmp_path / "hys"
     res = _identify(tmp_path / "d", "--fix", "Ms=0.0247", "--out", out, "--steps",
                     "hysteresis", "--n-pi", 6, "--no-figures")
-    assert res.exit_code == 0, res.output
+    # Six play operators cannot follow the truth's 35 to within the noise (1.9 nm
+    # beyond 0.95 nm): converged but misspecified, written and marked (exit 4).
+    assert res.exit_code == 4, res.output
     fit = json.loads((out / "fit.json").read_text())
-    assert fit["converged"] is True
+    assert fit["converged"] is True and fit["status"] == "misspecified"
     assert [s["name"] for s in fit["steps"]] == ["hysteresis"]
     p = fit["parameters"]
     assert p["pi_weights[0]"]["fitted"] and p["pi_weights[0]"]["std_error"] > 0
     for name in ("Mp", "Kp", "z_ba_forward"):  # held, never "determined"
         assert p[name]["fitted"] is False and p[name]["determined"] is False, name
-    assert "Mp" in res.stdout and "(not fitted: held at its start value)" in res.stdout
+    held = [ln for ln in res.stdout.splitlines() if ln.strip().startswith("Mp ")]
+    assert held and "(held: not fitted)" in held[0] and "±" not in held[0]
     fitted = json.loads((out / "params.json").read_text())
     assert fitted["Kp"] == float(START.piezo.Kp)  # held
     assert len(fitted["pi_weights"]) == 6

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 import stickslip_jax as ss
-from stickslip_jax.diagnose.significance import Significance, per_recording_chi2
 from stickslip_jax.noise import noise_sigma, noise_sigma_relative_se
+from stickslip_jax.significance import Significance, per_recording_chi2
 
 FS = 25_000.0
 

@@ -2,7 +2,8 @@
 
 Exit codes: 0 done; 1 an unexpected error (a bug, or a mistake the tool does not
 recognise); 2 bad input (:data:`EXIT_BAD_INPUT`); 3 the computation failed, e.g. a fit
-did not converge (:data:`EXIT_FAILED`). Every error is one ``error: ...`` line on
+did not converge (:data:`EXIT_FAILED`); 4 a fit converged to a model that does not
+describe the recordings (:data:`EXIT_MISSPECIFIED`). Every error is one ``error: ...`` line on
 stderr (one per bad recording); ``stickslip --debug`` (or ``STICKSLIP_DEBUG=1``) shows
 the traceback instead.
 """
@@ -21,11 +22,14 @@ from typer.core import TyperGroup
 
 from ..blas_threads import limit_blas_threads
 from ..compilation_cache import cache_dir_from_env, use_compilation_cache
+from ..io import RecordingErrors
 from ..xla_flags import add_xla_flag, fast_cpu_loops
 
 EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 3
+EXIT_MISSPECIFIED = 4
+"""A fit converged, but the model does not describe the recordings (identify)."""
 
 #: The most samples ``simulate`` generates: about 270 bytes of memory per sample at
 #: the peak (drive, output, the solver's arrays and the CSV text), so about 2.7 GB.
@@ -101,26 +105,19 @@ def debug_enabled() -> bool:
     return _debug or env not in ("", "0", "false", "no")
 
 
-class RecordingErrors(ValueError):
-    """Several recordings break the file contract; ``errors``: one
-    :class:`~stickslip_jax.io.RecordingError` per file, each on its own line."""
-
-    def __init__(self, errors):
-        self.errors = list(errors)
-        super().__init__("\n".join(str(e) for e in self.errors))
-
-
 def user_errors():
     """Exception types that are the user's to fix (reported without a traceback)."""
     from ..files import InputOverwriteError, OutputExistsError, OutputPathError
     from ..io import RecordingError
     from ..params import ParameterError
     from ..simulate import NonFiniteSimulation
+    from ..staging import OutputLockedError
     from ..stepping import SteppingError
 
     return (RecordingError, RecordingErrors, ParameterError, OutputExistsError,
             InputOverwriteError, OutputPathError, IsADirectoryError, NotADirectoryError,
-            FileNotFoundError, PermissionError, NonFiniteSimulation, SteppingError)
+            FileNotFoundError, PermissionError, NonFiniteSimulation, SteppingError,
+            OutputLockedError)
 
 
 def _error_message(err: BaseException) -> str:
@@ -195,20 +192,12 @@ def check_outputs(outputs: Mapping[Path | None, Sequence[str] | None], *, force:
     """Check every output a command will write, before any input is read or anything
     computed: format, folder, overwrite (``--force``) and input rules of
     :func:`stickslip_jax.files.check_outputs`. ``outputs``: path (None: not asked for)
-    → the extensions its writer knows (None: any). Creates nothing: the command calls
-    :func:`make_folders` when it is about to write. Returns the paths given."""
+    → the extensions its writer knows (None: any). Creates nothing: the command stages its outputs
+    (:mod:`~stickslip_jax.staging`) when it writes. Returns the paths given."""
     from ..files import check_outputs as check
 
     return check({p: s for p, s in outputs.items() if p is not None}, force=force,
                  inputs=[i for i in inputs if i is not None], create_folders=False)
-
-
-def make_folders(*paths: Path | None) -> None:
-    """Create the folders of the output files ``paths`` (None: skipped), just before
-    they are written."""
-    for p in paths:
-        if p is not None:
-            Path(p).expanduser().parent.mkdir(parents=True, exist_ok=True)
 
 
 def check_sample_count(n: int, what: str) -> None:
@@ -306,13 +295,26 @@ def status(message: str):
         yield
 
 
+def load_params_noting(path: Path):
+    """:func:`~stickslip_jax.params.load_params`, with one ``warning:`` line on stderr
+    when the file is marked as the result of a fit that was not a plain result
+    (``fit_status``, e.g. misspecified)."""
+    from ..params import fit_status_of, load_params
+
+    actuator = load_params(path)
+    status = fit_status_of(path)
+    if status:
+        typer.echo(f"warning: {path}: these parameters are marked \"{status.split(':')[0]}\" "
+                   f"by the fit that wrote them (fit_status in the file).", err=True)
+    return actuator
+
+
 def load_actuator(params: Path | None, zba_surface: Path | None = None):
     """The actuator of ``--params`` (default profile without it), with its z_ba read
     from ``--zba-surface`` when given. Bad files raise user errors (exit 2)."""
     from ..model.profiles import lu2015_slc1720
-    from ..params import load_params
 
-    actuator = load_params(params) if params is not None else lu2015_slc1720()
+    actuator = load_params_noting(params) if params is not None else lu2015_slc1720()
     if zba_surface is not None:
         from ..sweep.zba_surface import load_zba_surface, with_zba_surface
 

@@ -13,7 +13,6 @@ from .common import (
     check_outputs,
     fail,
     load_actuator,
-    make_folders,
     reported_errors,
     setup_jax,
 )
@@ -81,6 +80,8 @@ def contacts_command(
         from ..model.ceim import CEIMElastoPlastic
         from ..model.friction import LuGre
         from ..model.registry import friction_law_name
+        from ..plausibility import check_actuator_plausible
+        from ..staging import staged_folder
         from ..sweep import parse_values
         from ..sweep.contact_studies import (
             force_vs_amplitude,
@@ -104,46 +105,48 @@ def contacts_command(
         paths = {n: out / n for n in ("contacts.json", "preload.png", "spread.png",
                                        "force.png")}
         check_outputs(dict.fromkeys(paths.values()), force=force, inputs=[params])
-        act = load_actuator(params)
-        notes = []
-        fr = act.friction
-        if isinstance(fr, CEIMElastoPlastic):
-            ceim = fr
-        else:
-            try:
-                ceim = CEIMElastoPlastic.matching_law(fr, preload=reference_preload)
-            except ValueError as err:
-                raise fail(f"the preload study needs a CEIM contact or one to make it "
-                           f"from: {err}") from None
-            notes.append(f"CEIM contact made from the '{friction_law_name(fr)}' parameters: "
-                         f"the same stiffness, z_ba and Coulomb level at "
-                         f"{reference_preload:g} N, half of z_ba and of the contact "
-                         f"stiffness growing with the preload (illustrative coefficients, "
-                         f"not identified)")
-        act_ceim = eqx.tree_at(lambda a: a.friction, act, ceim)
-        typer.echo("preload study...")
-        pre = preload_study(act_ceim, loads, amps, frequency)
-        make_folders(*paths.values())
-        pre.plot(paths["preload.png"], title=f"CEIM: step vs amplitude at {frequency:g} Hz "
-                 f"for several preloads")
-        typer.echo("contact spread study...")
-        spr = spread_study(act_ceim, spreads, amps, frequency)
-        spr.plot(paths["spread.png"], title=f"multi-contact runner (CEIM contacts, total "
-                 f"{float(ceim.preload):g} N), {frequency:g} Hz")
-        typer.echo("force generation...")
-        fc = float(ceim.coulomb_force())
-        lugre = eqx.tree_at(lambda a: a.friction, act, LuGre(
-            float(ceim.sigma0()), 0.0, 0.0, fc, fc, 1e-3))
-        law = friction_law_name(fr)
-        label = "elasto-plastic" if law in ("elastoplastic", "ceim") else law
-        curves = {label: force_vs_amplitude(act, amps, frequency, k_load=k_load),
-                  "LuGre (same stiffness and Coulomb level)":
-                      force_vs_amplitude(lugre, amps, frequency, k_load=k_load)}
-        plot_force_curves(curves, paths["force.png"])
-        payload = {"notes": notes, "preload_study": pre.to_dict(),
-                   "spread_study": {**spr.to_dict(), "spreads": spreads},
-                   "force_generation": {k: v.to_dict() for k, v in curves.items()}}
-        atomic_write_text(paths["contacts.json"], json.dumps(payload, indent=1) + "\n")
+        # Locked before the studies, written whole or not at all (stickslip_jax.staging).
+        with staged_folder(out, "contacts", force=force) as stage:
+            act = load_actuator(params)
+            check_actuator_plausible(act, params)
+            notes = []
+            fr = act.friction
+            if isinstance(fr, CEIMElastoPlastic):
+                ceim = fr
+            else:
+                try:
+                    ceim = CEIMElastoPlastic.matching_law(fr, preload=reference_preload)
+                except ValueError as err:
+                    raise fail(f"the preload study needs a CEIM contact or one to make it "
+                               f"from: {err}") from None
+                notes.append(f"CEIM contact made from the '{friction_law_name(fr)}' parameters: "
+                             f"the same stiffness, z_ba and Coulomb level at "
+                             f"{reference_preload:g} N, half of z_ba and of the contact "
+                             f"stiffness growing with the preload (illustrative coefficients, "
+                             f"not identified)")
+            act_ceim = eqx.tree_at(lambda a: a.friction, act, ceim)
+            typer.echo("preload study...")
+            pre = preload_study(act_ceim, loads, amps, frequency)
+            pre.plot(stage / "preload.png", title=f"CEIM: step vs amplitude at {frequency:g} Hz "
+                     f"for several preloads")
+            typer.echo("contact spread study...")
+            spr = spread_study(act_ceim, spreads, amps, frequency)
+            spr.plot(stage / "spread.png", title=f"multi-contact runner (CEIM contacts, total "
+                     f"{float(ceim.preload):g} N), {frequency:g} Hz")
+            typer.echo("force generation...")
+            fc = float(ceim.coulomb_force())
+            lugre = eqx.tree_at(lambda a: a.friction, act, LuGre(
+                float(ceim.sigma0()), 0.0, 0.0, fc, fc, 1e-3))
+            law = friction_law_name(fr)
+            label = "elasto-plastic" if law in ("elastoplastic", "ceim") else law
+            curves = {label: force_vs_amplitude(act, amps, frequency, k_load=k_load),
+                      "LuGre (same stiffness and Coulomb level)":
+                          force_vs_amplitude(lugre, amps, frequency, k_load=k_load)}
+            plot_force_curves(curves, stage / "force.png")
+            payload = {"notes": notes, "preload_study": pre.to_dict(),
+                       "spread_study": {**spr.to_dict(), "spreads": spreads},
+                       "force_generation": {k: v.to_dict() for k, v in curves.items()}}
+            atomic_write_text(stage / "contacts.json", json.dumps(payload, indent=1) + "\n")
     for note in notes:
         typer.echo(f"note: {note}")
     typer.echo("0-amplitude threshold by preload: " + ", ".join(

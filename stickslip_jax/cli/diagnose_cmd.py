@@ -8,7 +8,14 @@ from pathlib import Path
 import typer
 
 from ..diagnose.budget import DEFAULT_WORK_BUDGET, UNIT
-from .common import check_outputs, fail, load_recordings_reporting_all, reported_errors, setup_jax
+from .common import (
+    check_outputs,
+    fail,
+    load_params_noting,
+    load_recordings_reporting_all,
+    reported_errors,
+    setup_jax,
+)
 from .identify_cmd import _parse_fix
 
 EPILOG = """Examples:
@@ -65,8 +72,10 @@ def diagnose_command(
         setup_jax()
         from ..diagnose import NAMES, diagnose
         from ..diagnose.report import named_line, unexplained_line, write_diagnosis
+        from ..identify.sampling import check_sample_rates
         from ..model.profiles import lu2015_slc1720
-        from ..params import load_params
+        from ..plausibility import check_actuator_plausible
+        from ..staging import staged_folder
 
         chosen = [c.strip() for c in candidates.split(",") if c.strip()] or None
         bad = [c for c in chosen or [] if c not in NAMES]
@@ -92,21 +101,26 @@ def diagnose_command(
             f"figures/{n}.png" for n in ("residual_map", "overlays", "residual_psd")])
         check_outputs(dict.fromkeys(out / n for n in names), force=force,
                       inputs=[params, *inputs])
-        start = load_params(params) if params is not None else lu2015_slc1720()
-        typer.echo(f"{len(recordings)} recording(s); start: "
-                   f"{params if params is not None else 'profile lu2015_slc1720'}", err=True)
-        try:
-            result = diagnose(recordings, init=start, fix=fixed,
-                              identify_steps=() if skip_identify else
-                              ("dynamics", "hysteresis", "friction", "joint"),
-                              candidates=chosen, max_rounds=max_rounds, top=top,
-                              max_steps=max_steps, fallback=not no_fallback,
-                              work_budget=work_budget * DEFAULT_WORK_BUDGET,
-                              echo=lambda s: typer.echo(s, err=True))
-        except ValueError as err:
-            raise fail(str(err)) from None
-        written = write_diagnosis(result, out, force=force, inputs=inputs,
-                                  figures=not no_figures)
+        start = load_params_noting(params) if params is not None else lu2015_slc1720()
+        check_actuator_plausible(start, params)
+        check_sample_rates(recordings, start)  # also for --skip-identify
+        # Locked before the diagnosis, written whole or not at all (stickslip_jax.staging).
+        with staged_folder(out, "diagnose", force=force) as stage:
+            typer.echo(f"{len(recordings)} recording(s); start: "
+                       f"{params if params is not None else 'profile lu2015_slc1720'}",
+                       err=True)
+            try:
+                result = diagnose(recordings, init=start, fix=fixed,
+                                  identify_steps=() if skip_identify else
+                                  ("dynamics", "hysteresis", "friction", "joint"),
+                                  candidates=chosen, max_rounds=max_rounds, top=top,
+                                  max_steps=max_steps, fallback=not no_fallback,
+                                  work_budget=work_budget * DEFAULT_WORK_BUDGET,
+                                  echo=lambda s: typer.echo(s, err=True))
+            except ValueError as err:
+                raise fail(str(err)) from None
+            written = write_diagnosis(result, stage, inputs=inputs, figures=not no_figures)
+    written = {k: out / p.relative_to(stage) for k, p in written.items()}
     typer.echo(f"verdict: {result.verdict}")
     typer.echo(f"NRMSE {100 * result.nrmse_baseline.mean():.4f} % -> "
                f"{100 * result.nrmse_final.mean():.4f} %")

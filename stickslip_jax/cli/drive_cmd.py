@@ -14,7 +14,6 @@ from .common import (
     check_periods,
     fail,
     load_actuator,
-    make_folders,
     reported_errors,
     setup_jax,
 )
@@ -57,6 +56,8 @@ def drive_command(
     with reported_errors():
         setup_jax(all_cpu_cores=True)
         from ..files import JSON_SUFFIXES, atomic_write_text
+        from ..plausibility import check_actuator_plausible
+        from ..staging import staged_files
         from ..sweep import drive_for_velocity, parse_values, parse_velocity
 
         if direction not in (None, "forward", "backward"):
@@ -77,11 +78,19 @@ def drive_command(
         direction = direction or ("backward" if wanted < 0 else "forward")
         speed = abs(wanted)
         check_outputs({out: JSON_SUFFIXES}, force=force, inputs=[params])
-        actuator = load_actuator(params)
-        signed = -speed if direction == "backward" else speed
-        choices, unreachable = drive_for_velocity(actuator, signed, frequencies=freqs,
-                                                  amplitudes=amps, periods=periods,
-                                                  settle=settle)
+        # Locked before the search, written whole or not at all (stickslip_jax.staging).
+        with staged_files([out], force=force) as staged:
+            actuator = load_actuator(params)
+            check_actuator_plausible(actuator, params)
+            signed = -speed if direction == "backward" else speed
+            choices, unreachable = drive_for_velocity(actuator, signed, frequencies=freqs,
+                                                      amplitudes=amps, periods=periods,
+                                                      settle=settle)
+            if out is not None:
+                payload = {"velocity_m_s": signed, "direction": direction,
+                           "choices": [c.__dict__ for c in choices],
+                           "unreachable_Hz": unreachable}
+                atomic_write_text(staged[out], json.dumps(payload, indent=1) + "\n")
     typer.echo(f"{direction} at {speed * 1e6:g} µm/s:")
     typer.echo(f"  {'frequency_Hz':>12s} {'amplitude_V':>12s} {'velocity_um_s':>14s} "
                f"{'step_nm':>10s}  note")
@@ -92,10 +101,6 @@ def drive_command(
     for f in unreachable:
         typer.echo(f"  {f:12.6g} {'-':>12s} {'-':>14s} {'-':>10s}  beyond the amplitude range")
     if out is not None:
-        payload = {"velocity_m_s": signed, "direction": direction,
-                   "choices": [c.__dict__ for c in choices], "unreachable_Hz": unreachable}
-        make_folders(out)
-        atomic_write_text(out, json.dumps(payload, indent=1) + "\n")
         typer.echo(f"wrote {out}")
     if not any(c.reached for c in choices):
         raise typer.Exit(3)

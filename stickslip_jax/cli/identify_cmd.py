@@ -8,8 +8,10 @@ import typer
 
 from .common import (
     EXIT_FAILED,
+    EXIT_MISSPECIFIED,
     check_outputs,
     fail,
+    load_params_noting,
     load_recordings_reporting_all,
     reported_errors,
     setup_jax,
@@ -24,12 +26,19 @@ EPILOG = """Examples:
   stickslip identify runs/ --out out/id --steps dynamics,hysteresis --force
 
 Exit codes: 0 converged; 2 bad input; 3 a fit did not converge (the parameters are
-then written as params.unconverged.json, never as params.json), or the recordings
+then written as params.unconverged.json, never as params.json; an early step's cap
+does not count when a later step refitted its parameters and converged), or the
+recordings
 cannot determine a parameter of the steps asked for: nothing is fitted and nothing
 written, and the message names the parameters, why, and the recording that would
 determine them (a step response for Mp, Dp, Kp, Ds, rho0; a sine for the PI weights;
 a sawtooth that steps, per direction, for z_ba). --steps limits the check to the
-steps asked for: sine recordings alone can still be fitted with --steps hysteresis.
+steps asked for: sine recordings alone can still be fitted with --steps hysteresis;
+4 the fit converged but the model does not describe the recordings (its error is
+larger than their noise; fit.json: model_check): params.json is written, marked
+"fit_status": "misspecified: ...", and each value is printed with its spread over
+leave-one-regime-out fits, which is what holds then (its standard error is not).
+`stickslip diagnose` names what the model leaves out.
 """
 
 
@@ -94,7 +103,9 @@ def identify_command(
         from ..identify import STEPS, identify
         from ..identify.report import fit_summary, output_paths, write_identification
         from ..model.profiles import lu2015_slc1720
-        from ..params import ParameterError, load_params
+        from ..params import ParameterError
+        from ..plausibility import check_actuator_plausible
+        from ..staging import staged_folder
 
         step_list = [s.strip() for s in steps.split(",") if s.strip()]
         bad = [s for s in step_list if s not in STEPS]
@@ -110,20 +121,39 @@ def identify_command(
                  if not (no_figures and p.parent == out / "figures")]
         check_outputs(dict.fromkeys(paths), force=force,
                       inputs=[init, *(r.source for r in recordings)])
-        start = load_params(init) if init is not None else lu2015_slc1720()
-        typer.echo(f"{len(recordings)} recording(s); start: "
-                   f"{init if init is not None else 'profile lu2015_slc1720'}", err=True)
-        try:
-            result = identify(recordings, init=start, fix=fixed, steps=step_list, n_pi=n_pi,
-                              free_ratio=free_ratio, fit_rho1=fit_rho1, max_steps=max_steps,
-                              echo=lambda s: typer.echo(s, err=True))
-        except ValueError as err:
-            raise fail(str(err)) from None
-        if result.undetermined is not None and result.undetermined.blocking:
-            raise fail(result.undetermined.statement(), EXIT_FAILED)
-        written = write_identification(result, out, force=force, figures=not no_figures,
-                                       inputs=[r.source for r in recordings if r.source])
-        summary = fit_summary(result)
+        start = load_params_noting(init) if init is not None else lu2015_slc1720()
+        check_actuator_plausible(start, init)
+        # Locked before the fit, written whole or not at all (stickslip_jax.staging).
+        with staged_folder(out, "identify", force=force) as stage:
+            typer.echo(f"{len(recordings)} recording(s); start: "
+                       f"{init if init is not None else 'profile lu2015_slc1720'}", err=True)
+            try:
+                result = identify(recordings, init=start, fix=fixed, steps=step_list,
+                                  n_pi=n_pi, free_ratio=free_ratio, fit_rho1=fit_rho1,
+                                  max_steps=max_steps, spread_if_misspecified=True,
+                                  echo=lambda s: typer.echo(s, err=True))
+            except ValueError as err:
+                raise fail(str(err)) from None
+            if result.undetermined is not None and result.undetermined.blocking:
+                raise fail(result.undetermined.statement(), EXIT_FAILED)
+            written = write_identification(result, stage, figures=not no_figures,
+                                           inputs=[r.source for r in recordings if r.source])
+            summary = fit_summary(result)
+    written = {k: out / p.relative_to(stage) for k, p in written.items()}
+    print_identification(result, summary, written)
+
+
+def print_identification(result, summary: dict, written: dict) -> None:
+    """The verdict first (when the model does not describe the recordings), then the
+    fit against the noise, each parameter with its standard error (and its spread over
+    leave-one-regime-out fits when misspecified), and what was written; exits 3 or 4
+    with one ``error:`` line when the fit is not a plain result."""
+    check = result.model_check
+    if result.misspecified:
+        typer.echo(f"MISSPECIFIED: {check.statement()}. The values below are the "
+                   f"least-squares fit of a model that lacks something: their ± standard "
+                   f"errors assume it does not; the spread over fits that leave one regime "
+                   f"out is what holds. `stickslip diagnose` names what is missing.")
     for note in result.notes:
         typer.echo(f"note: {note}")
     o = summary["overall"]
@@ -131,13 +161,12 @@ def identify_command(
     typer.echo(f"overall NRMSE {100 * o['nrmse']:.4f} % (noise floor "
                f"{100 * o['noise_floor_nrmse']:.4f} %, ratio "
                f"{'n/a' if ratio is None else format(ratio, '.3f')})")
+    if check is not None and not result.misspecified:
+        typer.echo(f"check: {check.statement()}")
     for label, p in summary["parameters"].items():
         if "[" in label:
             continue
-        se = f"± {p['std_error']:.3g}" if p["std_error"] is not None else "± ?"
-        flag = ("" if p["determined"] else "   (not determined by these data)"
-                if p["fitted"] else "   (not fitted: held at its start value)")
-        typer.echo(f"  {label:14s} {p['value']:.6g} {se} {p['unit']}{flag}")
+        typer.echo(f"  {label:14s} {p['value']:.6g} {_uncertainty(p)}")
     curve = summary.get("hysteresis_loading_curve")
     if curve:
         weights = [p for lab, p in summary["parameters"].items() if lab.startswith("pi_weights[")]
@@ -151,7 +180,25 @@ def identify_command(
     typer.echo(f"wrote {', '.join(str(p) for p in written.values() if p.suffix == '.json')} "
                f"and {len(written) - 2} figure(s)")
     if not result.converged:
-        failed = [s.name for s in result.steps if s.result is not None and not s.converged]
-        typer.echo(f"error: step(s) {', '.join(failed)} did not converge; parameters written "
-                   f"to {written['params']} (not trustworthy)", err=True)
-        raise typer.Exit(EXIT_FAILED)
+        failed = [s.name for s in result.unconverged_steps]
+        raise fail(f"step(s) {', '.join(failed)} did not converge; parameters written to "
+                   f"{written['params']} (not trustworthy)", EXIT_FAILED)
+    if result.misspecified:
+        raise fail(f"the model does not describe these recordings (mean (e/σ)² "
+                   f"{check.chi2_overall:.3g}); parameters written to {written['params']}, "
+                   f"marked misspecified; run `stickslip diagnose` to name what is missing",
+                   EXIT_MISSPECIFIED)
+
+
+def _uncertainty(p: dict) -> str:
+    """``± SE unit`` (and the regime spread where there is one) of a fit.json
+    parameter entry; a held one has no standard error."""
+    if not p["fitted"]:
+        return f"{p['unit']}   (held: not fitted)"
+    se = f"± {p['std_error']:.3g}" if p["std_error"] is not None else "± ?"
+    if "regime_spread" in p:
+        spread = p["regime_spread"]
+        se += (f" (spread {spread:.3g} over fits leaving one regime out)" if spread
+               is not None else " (no spread: fewer than two regime-out fits)")
+    flag = "" if p["determined"] else "   (not determined by these data)"
+    return f"{se} {p['unit']}{flag}"

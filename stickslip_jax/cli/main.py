@@ -24,7 +24,10 @@ from .common import ReportingGroup, set_debug
 EPILOG = """Exit codes: 0 done; 1 an unexpected error (a bug: rerun with --debug and report
 it); 2 bad input (a wrong option, recording, parameter file or output path, refused
 before any computation); 3 the computation failed (a fit did not converge, a velocity
-was not reached). Errors are one line, "error: ...", on stderr.
+was not reached); 4 a fit converged but the model does not describe the recordings
+(identify: the parameters are written, marked misspecified); 130 interrupted by
+Ctrl-C (143: SIGTERM), within a second, leaving no partial output. Errors are one
+line, "error: ...", on stderr.
 
 --debug (anywhere on the line) or STICKSLIP_DEBUG=1 shows the traceback instead.
 """

@@ -15,7 +15,6 @@ from .common import (
     check_sample_count,
     fail,
     load_actuator,
-    make_folders,
     reported_errors,
     setup_jax,
     status,
@@ -83,8 +82,9 @@ def simulate_command(
 ) -> None:
     """Simulate the actuator and write the output q = x1 + x2 as a recording."""
     with reported_errors():
-        from .. import io, signals
+        from .. import io
         from ..files import RECORDING_SUFFIXES, image_suffixes
+        from ..staging import staged_files
 
         # Every option and output is checked before anything is read or computed.
         if substeps < 0:
@@ -97,43 +97,60 @@ def simulate_command(
         check_outputs({out: RECORDING_SUFFIXES,
                        plot: image_suffixes() if plot is not None else None},
                       force=force, inputs=inputs)
-        if voltage_from is not None:
-            rec = io.load_recording(voltage_from, require_output=False)
-        else:
-            rec = _generated(signals, waveform, amplitude, frequency, direction, duration,
-                             sample_rate, t0)
-        setup_jax()
-        from ..simulate import drive_context, estimate_error, simulate_recording
-        from ..stepping import Stepping
+        # Locked before the simulation, written whole or not at all.
+        with staged_files([out, plot], force=force) as staged:
+            q, rec = _simulate(params, zba_surface, voltage_from, waveform, amplitude,
+                               frequency, direction, duration, sample_rate, t0, substeps,
+                               max_step, error_estimate)
+            result = rec.with_position_m(q, unit=unit.value)
+            io.save_recording(result, staged[out], inputs=inputs)
+            if plot is not None:
+                from ..plots import plot_trace
 
-        actuator = load_actuator(params, zba_surface)
-        stepping = (Stepping.uniform(substeps) if substeps
-                    else Stepping(max_step=max_step or None))
-        with status(f"simulating {rec.n} samples ({rec.regime})..."):
-            q = simulate_recording(actuator, rec, stepping=stepping)
-        if error_estimate:
-            with status("estimating the numerical error (step doubling)..."):
-                err = estimate_error(actuator, rec.voltage_V, dt=rec.dt,
-                                     drive=drive_context(rec), stepping=stepping)
-            typer.echo(f"numerical error estimate: {err * 1e9:.3g} nm RMS (offset removed)")
-        result = rec.with_position_m(q, unit=unit.value)
-        written = io.save_recording(result, out, force=force, inputs=inputs)
-        typer.echo(f"wrote {written} ({rec.n} samples, q from {q.min() * 1e6:.4g} to "
-                   f"{q.max() * 1e6:.4g} µm)")
-        if plot is not None:
-            from ..plots import plot_trace
+                meas = None
+                if voltage_from is not None and rec.position is not None:
+                    meas = rec.position_m
+                # The file's own output, whatever made it (a sensor, or another simulator
+                # for the conformance traces): "recorded", not "measured".
+                plot_trace(rec.time_s, rec.voltage_V, q, q_meas_m=meas,
+                           title=f"{rec.name}: {rec.regime}", path=staged[plot],
+                           meas_label=f"recorded in {voltage_from.name}" if meas is not None
+                           else "measured")
+    typer.echo(f"wrote {out} ({rec.n} samples, q from {q.min() * 1e6:.4g} to "
+               f"{q.max() * 1e6:.4g} µm)")
+    if plot is not None:
+        typer.echo(f"wrote {plot}")
 
-            meas = None
-            if voltage_from is not None and rec.position is not None:
-                meas = rec.position_m
-            title = f"{rec.name}: {rec.regime}"
-            make_folders(plot)
-            # The file's own output, whatever made it (a sensor, or another simulator for
-            # the conformance traces): "recorded", not "measured".
-            plot_trace(rec.time_s, rec.voltage_V, q, q_meas_m=meas, title=title, path=plot,
-                       meas_label=f"recorded in {voltage_from.name}" if meas is not None
-                       else "measured")
-            typer.echo(f"wrote {plot}")
+
+def _simulate(params, zba_surface, voltage_from, waveform, amplitude, frequency, direction,
+              duration, sample_rate, t0, substeps, max_step, error_estimate):
+    """The drive (read or generated) and the simulated output q [m] of ``simulate``."""
+    from .. import io, signals
+
+    if voltage_from is not None:
+        rec = io.load_recording(voltage_from, require_output=False)
+    else:
+        rec = _generated(signals, waveform, amplitude, frequency, direction, duration,
+                         sample_rate, t0)
+    setup_jax()
+    from ..plausibility import check_actuator_plausible
+    from ..simulate import drive_context, estimate_error, simulate_recording
+    from ..stepping import Stepping
+
+    actuator = load_actuator(params, zba_surface)
+    stepping = (Stepping.uniform(substeps) if substeps
+                else Stepping(max_step=max_step or None))
+    # Before the simulation: a unit slip in --params is named, not simulated.
+    check_actuator_plausible(actuator, params, stepping=stepping, dt=rec.dt,
+                             samples=rec.n - 1)
+    with status(f"simulating {rec.n} samples ({rec.regime})..."):
+        q = simulate_recording(actuator, rec, stepping=stepping)
+    if error_estimate:
+        with status("estimating the numerical error (step doubling)..."):
+            err = estimate_error(actuator, rec.voltage_V, dt=rec.dt,
+                                 drive=drive_context(rec), stepping=stepping)
+        typer.echo(f"numerical error estimate: {err * 1e9:.3g} nm RMS (offset removed)")
+    return q, rec
 
 
 def _check_generated(waveform, amplitude, frequency, duration, sample_rate):

@@ -13,7 +13,6 @@ from .common import (
     fail,
     load_actuator,
     load_recordings_reporting_all,
-    make_folders,
     reported_errors,
     setup_jax,
 )
@@ -50,6 +49,8 @@ def zba_command(
     with reported_errors():
         setup_jax()
         from ..files import atomic_write_text
+        from ..plausibility import check_actuator_plausible
+        from ..staging import staged_folder
         from ..sweep.zba_surface import (
             fit_zba_points,
             fit_zba_surface,
@@ -61,20 +62,22 @@ def zba_command(
         paths = [out / n for n in ("zba_points.csv", "zba_surface.json", "zba_surface.png")]
         check_outputs(dict.fromkeys(paths), force=force,
                       inputs=[params, *(r.source for r in recordings)])
-        actuator = load_actuator(params)
-        typer.echo(f"{len(recordings)} recording(s); fitting z_ba per sawtooth recording...",
-                   err=True)
-        try:
-            points = fit_zba_points(actuator, recordings)
-        except ValueError as err:
-            raise fail(str(err)) from None
-        fit = fit_zba_surface(points)
-        make_folders(*paths)
-        atomic_write_text(paths[0], points.to_csv())
-        plot_zba_surface(points, fit, paths[2])
-        supported = any(st.get("supported") for st in fit.stats.values())
-        if supported:
-            fit.save(paths[1], force=True)
+        # Locked before the fit, written whole or not at all (stickslip_jax.staging).
+        with staged_folder(out, "zba-surface", force=force) as stage:
+            actuator = load_actuator(params)
+            check_actuator_plausible(actuator, params)
+            typer.echo(f"{len(recordings)} recording(s); fitting z_ba per sawtooth recording...",
+                       err=True)
+            try:
+                points = fit_zba_points(actuator, recordings)
+            except ValueError as err:
+                raise fail(str(err)) from None
+            fit = fit_zba_surface(points)
+            atomic_write_text(stage / paths[0].name, points.to_csv())
+            plot_zba_surface(points, fit, stage / paths[2].name)
+            supported = any(st.get("supported") for st in fit.stats.values())
+            if supported:
+                fit.save(stage / paths[1].name)
     n_bad = int((~points.determined).sum())
     typer.echo(f"{len(points.names)} z_ba point(s), {n_bad} not determined (excluded)")
     for name, st in fit.stats.items():

@@ -17,7 +17,7 @@ over ``N`` samples:
 - the *excess*: ``Σ(e/σ)² − N``, what the residual holds beyond the noise (``N`` is
   its expectation for pure noise);
 - ``ΔBIC = ΔΣ(e/σ)² + k·ln N`` of a refit with ``k`` added parameters (σ known);
-- the *tolerance* ``τ`` (:mod:`.significance`): the excess of the mean ``(e/σ)²``
+- the *tolerance* ``τ`` (:mod:`~stickslip_jax.significance`): the excess of the mean ``(e/σ)²``
   over 1 that the data cannot tell from noise, made of the noise estimate's standard
   error and the simulator's numerical error;
 - the *rank value* of a sized entry: the largest of ``S`` and its sizing's drops of
@@ -32,6 +32,8 @@ docstrings say so.
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from ..significance import SIGNIFICANCE_Z
 
 
 @dataclass(frozen=True)
@@ -103,10 +105,10 @@ class Policy:
     below (a constant load took 52 % of a slew-limited drive's); no statistical
     derivation."""
 
-    significance_z: float = 3.0
+    significance_z: float = SIGNIFICANCE_Z
     """One-sided normal quantile of the practical-significance tests
-    (:mod:`.significance`): a residual is at the noise level when its mean ``(e/σ)²``
-    exceeds 1 by at most ``z`` standard errors of the noise estimate (plus the
+    (:mod:`~stickslip_jax.significance`): a residual is at the noise level when its
+    mean ``(e/σ)²`` exceeds 1 by at most ``z`` standard errors of the noise estimate (plus the
     simulator's numerical floor), and an entry's refit is material when it removes
     more than that. A refit that leaves an adequate residual explains it whatever
     share it removed; the rounds stop once an accepted entry leaves one; a final

@@ -24,9 +24,9 @@ from ..identify.steps import (
     without_absent_directions,
 )
 from ..model.actuator import Actuator
+from ..significance import Significance
 from ..stepping import StepPlan
 from .budget import UNIT, Budget, evaluation_work, fit_work, plan_factor, solve_work
-from .significance import Significance
 
 
 class WhitenedResiduals(eqx.Module):
@@ -225,8 +225,8 @@ class Problem:
         self.counts = np.asarray(data.mask.sum(axis=1), dtype=float)
         self._programs: dict = {}
         self.significance: Significance | None = None
-        """The tolerance of practical significance (:mod:`.significance`), set once the
-        baseline's numerical error is known."""
+        """The tolerance of practical significance (:mod:`~stickslip_jax.significance`),
+        set once the baseline's numerical error is known."""
 
     def plan_factor(self, act: Actuator, plan: StepPlan | None = None) -> float:
         """Cost per sample of simulating ``act`` at ``plan`` (default: the plan it needs

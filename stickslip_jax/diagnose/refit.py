@@ -17,13 +17,13 @@ import numpy as np
 from ..identify.steps import identify
 from ..model.actuator import Actuator
 from ..model.extensions import LEARNED_FEATURES
+from ..significance import per_recording_chi2
 from .budget import REIDENTIFY_EVALUATIONS
 from .catalogue import Candidate
 from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
 from .problem import OverBudget, Problem
 from .results import CandidateResult, CandidateStatus
-from .significance import per_recording_chi2
 from .sizing import FreeSizing, HeldSizing
 
 

@@ -153,7 +153,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "numerical_floor_nm": (None if d.numerical_error_m is None
                                else float(np.max(d.numerical_error_m)) * 1e9),
         "verdict": d.verdict,
-        # What the data can tell from the noise (diagnose/significance.py).
+        # What the data can tell from the noise (stickslip_jax/significance.py).
         "significance": d.significance,
         "detection_limits": d.detection_limits,
         "criterion": criterion_text(d.policy),

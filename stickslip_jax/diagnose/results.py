@@ -105,10 +105,10 @@ class CandidateResult:
     chi2_after: float = np.nan
     adequate: bool = False
     """The refit leaves a residual within the tolerance of the noise
-    (:meth:`~.significance.Significance.adequate`)."""
+    (:meth:`~stickslip_jax.significance.Significance.adequate`)."""
     material: bool = False
     """What the refit removed exceeds the tolerance
-    (:meth:`~.significance.Significance.material`)."""
+    (:meth:`~stickslip_jax.significance.Significance.material`)."""
     removed_nm: float = np.nan
     """What the refit removed, as an RMS over the samples [nm]."""
     removed_noise_share: float = np.nan

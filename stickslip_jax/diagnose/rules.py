@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..significance import Significance
 from .policy import DEFAULT_POLICY, Policy
 from .results import CandidateResult, CandidateStatus
-from .significance import Significance
 
 
 def rank_value(r: CandidateResult) -> float:
@@ -37,7 +37,7 @@ def rank_value(r: CandidateResult) -> float:
 def explains(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
     """The refit removes :attr:`~.Policy.explained_min` of the excess or leaves a
     residual within the tolerance of the noise (:attr:`~.CandidateResult.adequate`,
-    :mod:`.significance`), with values the entry calls plausible
+    :mod:`~stickslip_jax.significance`), with values the entry calls plausible
     (:attr:`~.CandidateResult.implausible` empty)."""
     return not r.implausible and (
         bool(np.isfinite(r.explained) and r.explained >= policy.explained_min)
@@ -47,7 +47,7 @@ def explains(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
 def acceptable(r: CandidateResult, policy: Policy = DEFAULT_POLICY) -> bool:
     """The refit would be accepted: ΔBIC below :attr:`~.Policy.bic_min`, what it
     removed is :attr:`~.CandidateResult.material` (more than the tolerance of
-    :mod:`.significance`), it :attr:`~.CandidateResult.predicts` the regimes left out
+    :mod:`~stickslip_jax.significance`), it :attr:`~.CandidateResult.predicts` the regimes left out
     of it at least as well as the model it extends (:mod:`.holdout`), and it
     :func:`explains` the residual."""
     return (r.criterion_delta < policy.bic_min and r.material and r.predicts
@@ -70,7 +70,7 @@ def indistinguishable(rival: CandidateResult, best: CandidateResult,
     """``rival``'s refit is accepted-grade (ΔBIC below :attr:`~.Policy.bic_min`, its
     values plausible) and
     its cost exceeds ``best``'s by no more than the tolerance (not
-    :meth:`~.significance.Significance.material`): the data cannot tell the two fits
+    :meth:`~stickslip_jax.significance.Significance.material`): the data cannot tell the two fits
     apart. (A share of the best ΔBIC, the former test, called an entry that left five
     times the best's residual indistinguishable wherever the effect was strong.)"""
     return (not rival.implausible and rival.criterion_delta < policy.bic_min
@@ -168,7 +168,7 @@ def acceptance_reach(excess: float, tolerance_rss: float,
     """The least a refit must remove to be accepted when no refit explains the
     residual: :attr:`~.Policy.partial_min` of ``excess`` (the (e/σ)² over the noise: a
     partial answer), or what leaves the residual within the tolerance
-    (``tolerance_rss``: :attr:`~.significance.Significance.tolerance_rss`),
+    (``tolerance_rss``: :attr:`~stickslip_jax.significance.Significance.tolerance_rss`),
     whichever is less."""
     return min(policy.partial_min * excess, excess - tolerance_rss)
 
@@ -284,7 +284,7 @@ def size_before_polish(rss_identified: float, rss_polished: float,
                        significance: Significance) -> bool:
     """Round one sizes each entry on the baseline before its polish too (:mod:`.sizing`):
     the polish removed a material part of the identified baseline's cost
-    (:meth:`~.significance.Significance.material`: more than the noise estimate's
+    (:meth:`~stickslip_jax.significance.Significance.material`: more than the noise estimate's
     uncertainty and the numerical floor), so the two baselines differ to the data and
     the polish may have bent one of them to mimic part of an effect. Otherwise they are
     one baseline to the data (as after an identification whose joint step already

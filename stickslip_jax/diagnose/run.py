@@ -63,8 +63,8 @@ it decides by is a field of its :class:`~.policy.Policy`:
    residual (known noise level): ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N
    samples). The best entry is accepted when ``ΔBIC <`` :attr:`~.Policy.bic_min`
    (strong evidence), what it removes is material (more than the tolerance of
-   :mod:`.significance`: the noise estimate's uncertainty and the simulator's numerical
-   error) *and* it explains the residual: it removes at least
+   :mod:`~stickslip_jax.significance`: the noise estimate's uncertainty and the
+   simulator's numerical error) *and* it explains the residual: it removes at least
    :attr:`~.Policy.explained_min` of the residual's squared excess over the noise, or
    leaves a residual within the tolerance. Accepted-grade rivals (ΔBIC below
    :attr:`~.Policy.bic_min`) whose refit's cost exceeds the best's by no more than the
@@ -99,6 +99,7 @@ from ..identify.residuals import dataset_plan, numerical_error
 from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
 from ..noise import noise_sigma, noise_sigma_relative_se
+from ..significance import Significance
 from .budget import DEFAULT_WORK_BUDGET, UNIT, Budget
 from .catalogue import CATALOGUE, Candidate
 from .holdout import held_out_cost
@@ -131,7 +132,6 @@ from .rules import (
     why_not_refitted,
 )
 from .scores import score_candidates
-from .significance import Significance
 from .sizing import (
     FreeSizing,
     HeldSizing,
@@ -250,7 +250,7 @@ def _score(problem: Problem, act: Actuator, base_names: list[str],
 
 
 def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Significance:
-    """The tolerance of practical significance (:mod:`.significance`): the noise
+    """The tolerance of practical significance (:mod:`~stickslip_jax.significance`): the noise
     estimates' standard errors and the simulator's error at the baseline."""
     data = problem.data
     plan = dataset_plan(base.act, data)

@@ -10,7 +10,7 @@ buy to first order, χ²(1) when the entry is absent. Strengths of the wrong sig
 
 The same ``c⊥`` gives each entry's **detection limit** on the recorded protocol: the
 strength ``s`` at which the part of the effect the baseline cannot mimic reaches the
-tolerance of :mod:`.significance`, ``s²·|c⊥|² = τ·N``; below it, a refit could not
+tolerance of :mod:`~stickslip_jax.significance`, ``s²·|c⊥|² = τ·N``; below it, a refit could not
 remove a material part of the residual. It is stated in the entry's own units and as
 the RMS the effect itself would add to the traces at that strength [nm] (before the
 baseline absorbs what it can), for the probe where that RMS is smallest.

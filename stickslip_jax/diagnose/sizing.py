@@ -9,7 +9,7 @@ round one it is sized on the baseline before its polish too, and the better sizi
 kept (:func:`size_best`), when the polish moved the baseline: :func:`~.run.diagnose`
 passes the polished baseline as ``unpolished`` (no second sizing) when the polish
 removed no material part of the identified baseline's cost (within the tolerance,
-:mod:`.significance`), as after an identification whose joint step already minimised
+:mod:`~stickslip_jax.significance`), as after an identification whose joint step already minimised
 the whitened residual; the two are then one baseline to the data, and a second
 sizing from it would differ only by its cruder start. What the sizing removed,
 ``size_drop``, ranks the refits with the score (:func:`~.rules.rank_value`).

@@ -58,6 +58,33 @@ def length_buckets(lengths, *, max_waste: float = 0.25):
     return tuple((tuple(sorted(g)), int(lengths[g[0]])) for g in groups)
 
 
+def mean_step_length(rec, q) -> float:
+    """Mean phase-locked step per sawtooth period [m] (period end to period end, the
+    start-up period left out); NaN when the recording has fewer than two whole
+    periods."""
+    steps = step_lengths(q, period_ends(rec))
+    return float(np.mean(steps)) if steps.size else float("nan")
+
+
+def classify_regime(rec, q=None) -> str:
+    """``step``, ``sine``, ``scanning``, ``stepping_forward``/``stepping_backward``.
+
+    A sawtooth drive steps when the phase-locked mean step per period exceeds a tenth
+    of the output's peak-to-peak within a period; otherwise the slider follows the
+    piezo back and forth (scanning).
+    """
+    drive = rec.drive
+    if drive.waveform != "sawtooth":
+        return drive.waveform
+    q = rec.position_m if q is None else q
+    step = abs(mean_step_length(rec, q))
+    per = max(int(round(rec.sample_rate_Hz / drive.frequency_Hz)), 2)
+    swing = float(np.median([np.ptp(q[i:i + per]) for i in range(0, len(q) - per + 1, per)]))
+    if not np.isfinite(step) or step <= 0.1 * swing:
+        return "scanning"
+    return "stepping_backward" if drive.is_backward else "stepping_forward"
+
+
 @dataclass(frozen=True, eq=False)  # identity equality: it is static data under jit
 class Dataset:
     """Recordings packed for fitting.

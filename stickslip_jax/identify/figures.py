@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..plots import colormap, legend_on_labelled, save_figure, subplots
-from .dataset import period_ends, step_lengths
+from .dataset import mean_step_length
 from .initial import stroke_along
 from .residuals import _psd
 
@@ -98,14 +98,6 @@ def plot_hysteresis_loop(actuator, rec, q_sim, *, path: str | Path | None = None
     ax.legend(fontsize=8)
     ax.grid(alpha=0.25)
     return _finish(fig, path)
-
-
-def mean_step_length(rec, q) -> float:
-    """Mean phase-locked step per sawtooth period [m] (period end to period end, the
-    start-up period left out); NaN when the recording has fewer than two whole
-    periods."""
-    steps = step_lengths(q, period_ends(rec))
-    return float(np.mean(steps)) if steps.size else float("nan")
 
 
 def plot_step_lengths(recs, q_sims, *, path: str | Path | None = None):

@@ -17,7 +17,8 @@ import numpy as np
 from ..files import atomic_write_text, check_output_path
 from ..noise import noise_sigma
 from ..params import save_params
-from .figures import mean_step_length, plot_hysteresis_loop, plot_psd_overlay, plot_step_lengths
+from .dataset import classify_regime
+from .figures import plot_hysteresis_loop, plot_psd_overlay, plot_step_lengths
 from .parameters import unit_of
 
 FIGURES = ("step_psd.png", "fig11_psd.png", "hysteresis_loop.png", "step_length.png")
@@ -40,23 +41,16 @@ def check_outputs(out_dir: Path, recordings, *, force: bool) -> None:
             check_output_path(p, force=force, inputs=inputs)
 
 
-def classify_regime(rec, q=None) -> str:
-    """``step``, ``sine``, ``scanning``, ``stepping_forward``/``stepping_backward``.
-
-    A sawtooth drive steps when the phase-locked mean step per period exceeds a tenth
-    of the output's peak-to-peak within a period; otherwise the slider follows the
-    piezo back and forth (scanning).
-    """
-    drive = rec.drive
-    if drive.waveform != "sawtooth":
-        return drive.waveform
-    q = rec.position_m if q is None else q
-    step = abs(mean_step_length(rec, q))
-    per = max(int(round(rec.sample_rate_Hz / drive.frequency_Hz)), 2)
-    swing = float(np.median([np.ptp(q[i:i + per]) for i in range(0, len(q) - per + 1, per)]))
-    if not np.isfinite(step) or step <= 0.1 * swing:
-        return "scanning"
-    return "stepping_backward" if drive.is_backward else "stepping_forward"
+def fit_status(result) -> str:
+    """``converged``, ``misspecified`` (converged, but the model misses more than the
+    noise: :mod:`.model_check`), ``not converged`` or ``undetermined`` (nothing
+    fitted)."""
+    blocked = getattr(result, "undetermined", None)
+    if blocked is not None and blocked.blocking:
+        return "undetermined"
+    if not result.converged:
+        return "not converged"
+    return "misspecified" if getattr(result, "misspecified", False) else "converged"
 
 
 def fit_summary(result) -> dict:
@@ -83,6 +77,8 @@ def fit_summary(result) -> dict:
         }
     params = {}
     unc = result.uncertainty
+    spread = getattr(result, "regime_spread", None)
+    check = getattr(result, "model_check", None)
     fitted = {n for s in result.steps if s.result is not None for n in s.free}
     for lab, entry in (unc.as_dict() if unc is not None else {}).items():
         base = lab.split("[")[0]
@@ -94,6 +90,10 @@ def fit_summary(result) -> dict:
                           and se > 0)
         params[lab] = {**entry, "determined": determined, "fitted": base in fitted,
                        "unit": unit_of(base, result.actuator)}
+        if base not in fitted:  # held: its value is given, it has no standard error
+            params[lab].update(std_error=None, relative_error=None)
+        if spread is not None:
+            params[lab]["regime_spread"] = spread.spread.get(lab)
     scalars = [i for i, lab in enumerate(unc.labels) if "[" not in lab] if unc else []
     corr = ({"labels": [unc.labels[i] for i in scalars],
              "matrix": [[None if not np.isfinite(unc.correlations[i, j]) else
@@ -113,7 +113,11 @@ def fit_summary(result) -> dict:
     nrmse = float(np.mean(result.nrmse))
     floor = float(np.mean(floors))
     return {
+        "status": fit_status(result),
         "converged": result.converged,
+        "misspecified": bool(check is not None and check.misspecified),
+        "model_check": check.as_dict() if check is not None else None,
+        "regime_spread": spread.as_dict() if spread is not None else None,
         "overall": {"nrmse": nrmse, "noise_floor_nrmse": floor,
                     "nrmse_over_floor": nrmse / floor if floor > 0 else None,
                     "numerical_floor_nm": (None if numerical is None
@@ -146,7 +150,12 @@ def write_identification(result, out_dir: str | Path, *, force: bool = False,
     out_dir.mkdir(parents=True, exist_ok=True)
     written = {}
     name = "params.json" if result.converged else "params.unconverged.json"
-    written["params"] = save_params(result.actuator, out_dir / name, force=force, inputs=inputs)
+    status = None
+    if fit_status(result) == "misspecified":
+        status = (f"misspecified: {result.model_check.statement()}; the values are the "
+                  f"least-squares fit of a model that lacks something (fit.json)")
+    written["params"] = save_params(result.actuator, out_dir / name, force=force,
+                                    inputs=inputs, fit_status=status)
     fit = out_dir / "fit.json"
     check_output_path(fit, force=force, inputs=inputs)
     atomic_write_text(fit, json.dumps(fit_summary(result), indent=1) + "\n")

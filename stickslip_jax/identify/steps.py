@@ -46,6 +46,7 @@ from .initial import (
     scale_to_step_mode,
 )
 from .loading_curve import LoadingCurve, loading_curve_uncertainty
+from .model_check import ModelCheck, check_model
 from .parameters import (
     MECHANICS,
     ParameterMap,
@@ -55,6 +56,7 @@ from .parameters import (
     law_fittable,
     scale_invariant_names,
 )
+from .regime_spread import Refit, RegimeSpread, regime_spread
 from .residuals import (
     DEFAULT_W_PSD,
     TraceResiduals,
@@ -64,6 +66,7 @@ from .residuals import (
     numerical_error,
     simulate_dataset,
 )
+from .sampling import check_sample_rates
 from .sensitivities import RecordingPrograms, StepJacobian, perturbed_mask
 from .solve import SolveResult, solve_least_squares, value_and_jacobian
 from .uncertainty import Uncertainty, parameter_uncertainty
@@ -232,13 +235,42 @@ class Identification:
     A direction not recorded at all is only a note; its break-away is not fitted."""
     plan: StepPlan | None = None
     """The plan of sub-steps ``q_sim`` was simulated at (None when nothing was)."""
+    model_check: ModelCheck | None = None
+    """Whether the fitted model describes the recordings to within their noise
+    (:mod:`.model_check`); None when nothing was fitted."""
+    regime_spread: RegimeSpread | None = None
+    """Each parameter's spread over leave-one-regime-out fits (:mod:`.regime_spread`):
+    computed when the fit is misspecified and ``spread_if_misspecified`` was asked for."""
+
+    @property
+    def misspecified(self) -> bool:
+        """The model misses more than the noise (:attr:`.ModelCheck.misspecified`)."""
+        return self.model_check is not None and self.model_check.misspecified
+
+    @property
+    def unconverged_steps(self) -> list[StepReport]:
+        """The steps whose failure stands: each ran, did not converge, and no later step
+        that converged refitted every one of its parameters (:func:`superseding_step`).
+        A cap in an early step only means a worse start for the steps after it; the
+        joint step refits everything on every recording, so its verdict is the
+        result's."""
+        return [s for s in self.steps if s.result is not None and not s.converged
+                and superseding_step(self.steps, s) is None]
 
     @property
     def converged(self) -> bool:
-        """True when every step that ran converged and the data determine every
-        parameter of the steps asked for (never on untouched start values)."""
+        """True when no step's failure stands (:attr:`unconverged_steps`) and the data
+        determine every parameter of the steps asked for (never on untouched start
+        values)."""
         blocked = self.undetermined is not None and bool(self.undetermined.blocking)
-        return not blocked and all(s.converged for s in self.steps if s.result is not None)
+        return not blocked and not self.unconverged_steps
+
+
+def superseding_step(steps: Sequence[StepReport], step: StepReport) -> StepReport | None:
+    """The first step after ``step`` in ``steps`` that converged with every parameter of
+    ``step`` free (so ``step``'s end point is not the result), or None."""
+    later = steps[steps.index(step) + 1:]
+    return next((s for s in later if s.converged and set(step.free) <= set(s.free)), None)
 
 
 REPLAN_FACTOR = 2
@@ -342,6 +374,7 @@ def identify(
     w_psd: float = DEFAULT_W_PSD,
     extra: dict[str, ParameterSpec] | None = None,
     uncertainty: bool = True,
+    spread_if_misspecified: bool = False,
     echo: Callable[[str], None] | None = None,
 ) -> Identification:
     """Identify an actuator from recordings (see the module docstring).
@@ -356,8 +389,10 @@ def identify(
     ``extra`` quantities of a model extension already in ``init`` (name → spec), fitted
     in every step beside that step's own (the diagnosis re-identifies a baseline with
     an entry attached); ``uncertainty`` False skips the parameter uncertainty (one
-    Jacobian on every recording unless the joint step ran last); ``echo`` receives
-    progress lines.
+    Jacobian on every recording unless the joint step ran last);
+    ``spread_if_misspecified`` repeats the joint step once per regime left out when
+    the fit is misspecified (:mod:`.model_check`, :mod:`.regime_spread`: what holds of
+    the parameters then; a few joint fits more); ``echo`` receives progress lines.
     """
     extra = dict(extra or {})
     say = echo or (lambda s: None)
@@ -377,6 +412,7 @@ def identify(
                          f"fits with the {type(init.friction).__name__} law; those are: "
                          f"{', '.join(fittable_names(init)[:-1])}")
     data = Dataset.from_recordings(recordings)
+    check_sample_rates(data.recordings, init)  # before anything is fitted
     notes: list[str] = []
     scale_free = scale_invariant_names(init)
     if not any(n in fix for n in scale_free):
@@ -480,6 +516,10 @@ def identify(
         reports.append(StepReport(name, [r.name for r in subset], free, out, before, after,
                                   segments=segments))
         last = (res, out, evaluator)
+    notes += [f"Step '{s.name}' {s.result.message}; the '{later.name}' step, which refitted "
+              f"all of its parameters, converged, so its end point is the result."
+              for s in reports if s.result is not None and not s.converged
+              and (later := superseding_step(reports, s)) is not None]
 
     def simulated(actuator, plan):
         if programs is not None:
@@ -490,10 +530,10 @@ def identify(
     if not uncertainty:
         plan = kept_finer(dataset_plan(act, data), stepping)
         q_sim = simulated(act, plan)
+        numerical = numerical_error(act, data, plan, q_sim, programs=programs)
         return Identification(act, reports, data, nrmse_per_recording(q_sim, data), None,
-                              notes, q_sim, fix, numerical_error(act, data, plan, q_sim,
-                                                                 programs=programs),
-                              undetermined=informative, plan=plan)
+                              notes, q_sim, fix, numerical, undetermined=informative,
+                              plan=plan, model_check=check_model(data, q_sim, numerical))
     # Final evaluation and uncertainty on every recording with every fitted quantity.
     t0 = time.perf_counter()
     q_sim = None
@@ -540,5 +580,36 @@ def identify(
     numerical = numerical_error(act, data, plan, q_sim, programs=programs)
     say(f"[numerics] simulator error at the fit (step doubling): at most "
         f"{numerical.max() * 1e9:.3g} nm RMS per recording")
+    check = check_model(data, q_sim, numerical)
+    say(f"[check] {check.statement()}")
+    joint = next((r for r in reports if r.name == "joint" and r.result is not None), None)
+    spread = None
+    if spread_if_misspecified and check.misspecified and joint is not None:
+        spread = regime_spread(
+            data.recordings, joint.free,
+            _refit_without(act, data, extra, stepping, programs, max_steps, say),
+            lambda recs: assess(recs, act, steps=("joint",), fix=fix, also_fit=requested,
+                                n_pi=n_pi).names, say)
     return Identification(act, reports, data, nrmse, unc, notes, q_sim, fix, numerical,
-                          loading_curve=curve, undetermined=informative, plan=plan)
+                          loading_curve=curve, undetermined=informative, plan=plan,
+                          model_check=check, regime_spread=spread)
+
+
+def _refit_without(act: Actuator, data: Dataset, extra: dict, stepping: StepPlan | None,
+                   programs, max_steps: int, say: Callable[[str], None]) -> Refit:
+    """The joint step again on a subset of ``data``'s recordings from ``act`` (the full
+    fit), as :func:`~.regime_spread.regime_spread` asks for it."""
+
+    def refit(rows: list[int], names: list[str]):
+        sub = Dataset.from_recordings([data.recordings[b] for b in rows])
+        plan = kept_finer(dataset_plan(act, sub), stepping)
+        _, _, res, _, out, _ = _solve_step("joint", act, names, extra, sub, rows,
+                                           dict(whiten=True), plan, programs, max_steps,
+                                           lambda s: None)
+        say(f"[spread] {out.message} after {out.iterations} steps")
+        phys = res.pmap.physical(out.theta)
+        values = np.concatenate([np.atleast_1d(phys[n]) for n in res.pmap.names])
+        return (dict(zip(res.pmap.labels(), map(float, values), strict=True)),
+                bool(out.converged), out.message)
+
+    return refit

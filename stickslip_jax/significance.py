@@ -15,11 +15,12 @@ known, and by the simulator's own numerical error:
 - the simulator's error ``ε_i`` [m RMS] at the baseline (step doubling) is a bias
   any entry could absorb: ``Σ n_i (ε_i/σ_i)² / N`` in the same units.
 
-The **tolerance** ``τ = z·SE + numerical`` (``z``: :attr:`~.policy.Policy.
-significance_z`). A residual is *adequate* when its mean ``(e/σ)²`` is at most
-``1 + τ`` overall and, for every recording, at most ``1 + z_B·SE_i + numerical_i``
-(``z_B`` the same one-sided level shared over the ``B`` recordings, Bonferroni: a
-strong residual confined to one recording is not diluted by the others). An entry's
+The **tolerance** ``τ = z·SE + numerical`` (``z``: :data:`SIGNIFICANCE_Z`, or the
+diagnosis's :attr:`~stickslip_jax.diagnose.policy.Policy.significance_z`). A residual
+is *adequate* when its mean ``(e/σ)²`` is at most ``1 + τ`` overall and, for every
+recording, at most ``1 + z_B·SE_i + numerical_i`` (``z_B`` the same one-sided level
+shared over the ``B`` recordings, Bonferroni: a strong residual confined to one
+recording is not diluted by the others). An entry's
 refit is *material* when the drop of the mean ``(e/σ)²`` it buys exceeds ``τ``: more
 than the uncertainty of the noise level and the numerical floor could produce. Both
 are stated in nm RMS (``√(Δ(e/σ)²)`` times the samples' RMS σ) and as a share of the
@@ -32,6 +33,11 @@ from dataclasses import dataclass
 from statistics import NormalDist
 
 import numpy as np
+
+SIGNIFICANCE_Z = 3.0
+"""The default one-sided normal quantile of the tests: a residual of pure noise is
+called inadequate about once in 740 (see
+:attr:`~stickslip_jax.diagnose.policy.Policy.significance_z`)."""
 
 
 @dataclass(frozen=True)
