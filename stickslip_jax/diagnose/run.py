@@ -249,6 +249,23 @@ def _score(problem: Problem, act: Actuator, base_names: list[str],
     return scores, results, limits, span
 
 
+def _work_estimate(problem: Problem, init: Actuator, total: float | None) -> str:
+    """The line printed before the work: what one evaluation of the paper's model on
+    these recordings counts, and how many the work budget holds (counted work, for
+    display; nothing is charged)."""
+    columns = int(np.size(ParameterMap.make(init, baseline_free(init, problem.data,
+                                                                problem.fix)).zeros()))
+    one = problem.evaluation_work(init, columns)
+    head = (f"estimate: one evaluation of these {len(problem.data)} recordings "
+            f"({problem.samples:,} padded samples, {columns} parameters with the "
+            f"Jacobian, at the start's sub-steps) counts {one:.3g} {UNIT}")
+    if not total:
+        return head + "; no work budget"
+    return (f"{head}; the work budget, {total:.3g}, holds about {total / one:.0f} of them "
+            f"(the core, baseline to round one's first refits, runs whatever it holds; "
+            f"the optional work stops at it)")
+
+
 def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Significance:
     """The tolerance of practical significance (:mod:`~stickslip_jax.significance`): the noise
     estimates' standard errors and the simulator's error at the baseline."""
@@ -492,6 +509,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     sigmas = np.array([noise_sigma(r) for r in data.recordings])
     problem = Problem(data, sigmas, fix, say, budget)
     n_obs = problem.n_obs
+    say(f"[budget] {_work_estimate(problem, init, work_budget)}")
 
     # 1. Baseline.
     t0 = time.perf_counter()
