@@ -123,11 +123,8 @@ def test_identify_friction_step_writes_params_fit_and_refuses_to_overwrite(fixtu
                                                                           tmp_path):
     truth, data, init = _friction_case(fixtures_dir, tmp_path)
     out = tmp_path / "id"
-    # The PI weights too (with the sine): the start's are re-gridded to the recorded
-    # range, and a held hysteresis that misses would make the fit misspecified (exit 4).
-    args = ("identify", *data, fixtures_dir / "identification" / "sine_40V_50Hz.csv",
-            "--out", out, "--init", init, "--fix", "Ms=0.0247",
-            "--steps", "hysteresis,friction", "--no-figures")
+    args = ("identify", *data, "--out", out, "--init", init, "--fix", "Ms=0.0247",
+            "--steps", "friction", "--no-figures")
     res = run(*args)
     assert res.exit_code == 0, res.output
     assert "converged" in res.output and "[friction]" in res.output
@@ -135,7 +132,7 @@ def test_identify_friction_step_writes_params_fit_and_refuses_to_overwrite(fixtu
     for name in ("z_ba_forward", "z_ba_backward"):
         assert fitted[name] == pytest.approx(truth[name], rel=0.01)
     fit = json.loads((out / "fit.json").read_text())
-    assert fit["converged"] is True and fit["steps"][1]["name"] == "friction"
+    assert fit["converged"] is True and fit["steps"][0]["name"] == "friction"
     assert fit["status"] == "converged" and fit["model_check"]["verdict"] == "adequate"
     assert fit["recordings"]["saw_40V_500Hz_bwd"]["regime"] == "stepping_backward"
     again = run(*args)

@@ -383,7 +383,8 @@ def identify(
     steps: the paper's elasto-plastic law, or any registered law that flags its own);
     ``fix`` names held at given SI values; ``steps`` which of ``dynamics, hysteresis,
     friction, joint`` to run, in that order; ``n_pi`` play operators over the recorded
-    voltage range; ``also_fit`` the law's on-request parameters to fit as well
+    voltage range when a step asked for fits the PI weights (otherwise the start's
+    hysteresis is held as it is); ``also_fit`` the law's on-request parameters to fit as well
     (``free_ratio`` is ``zba_ratio``, ``fit_rho1`` is ``rho1``); ``w_psd``
     weight of the step-response log-PSD term (see :class:`TraceResiduals`);
     ``extra`` quantities of a model extension already in ``init`` (name → spec), fitted
@@ -435,7 +436,10 @@ def identify(
                               data, np.full(len(data), np.nan), None,
                               notes + [informative.statement()], None, fix,
                               undetermined=informative)
-    act = pi_over_range(act, data.recordings, n_pi)
+    if "hysteresis" in steps or "joint" in steps:
+        # Fitted: n_pi thresholds over the recorded voltages. Held, the start's
+        # hysteresis stays as given (a new grid would change the model held).
+        act = pi_over_range(act, data.recordings, n_pi)
 
     step_recs = [r for r in data.recordings if _is_step(r)]
     slow = [r for r in data.recordings if _is_sine(r)] or step_recs
