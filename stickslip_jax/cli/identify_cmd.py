@@ -36,9 +36,9 @@ a sawtooth that steps, per direction, for z_ba). --steps limits the check to the
 steps asked for: sine recordings alone can still be fitted with --steps hysteresis;
 4 the fit converged but the model does not describe the recordings (its error is
 larger than their noise; fit.json: model_check): params.json is written, marked
-"fit_status": "misspecified: ...", and each value is printed with its spread over
-leave-one-regime-out fits, which is what holds then (its standard error is not).
-`stickslip diagnose` names what the model leaves out.
+"fit_status": "misspecified: ...". Whenever the residual is beyond the noise, each
+value is printed with its spread over leave-one-regime-out fits beside its standard
+error (which assumes the model right). `stickslip diagnose` names what is left out.
 """
 
 
@@ -130,7 +130,7 @@ def identify_command(
             try:
                 result = identify(recordings, init=start, fix=fixed, steps=step_list,
                                   n_pi=n_pi, free_ratio=free_ratio, fit_rho1=fit_rho1,
-                                  max_steps=max_steps, spread_if_misspecified=True,
+                                  max_steps=max_steps, spread_if_mismatch=True,
                                   echo=lambda s: typer.echo(s, err=True))
             except ValueError as err:
                 raise fail(str(err)) from None
@@ -146,7 +146,7 @@ def identify_command(
 def print_identification(result, summary: dict, written: dict) -> None:
     """The verdict first (when the model does not describe the recordings), then the
     fit against the noise, each parameter with its standard error (and its spread over
-    leave-one-regime-out fits when misspecified), and what was written; exits 3 or 4
+    leave-one-regime-out fits when beyond the noise), and what was written; exits 3 or 4
     with one ``error:`` line when the fit is not a plain result."""
     check = result.model_check
     if result.misspecified:

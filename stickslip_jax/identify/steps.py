@@ -240,7 +240,8 @@ class Identification:
     (:mod:`.model_check`); None when nothing was fitted."""
     regime_spread: RegimeSpread | None = None
     """Each parameter's spread over leave-one-regime-out fits (:mod:`.regime_spread`):
-    computed when the fit is misspecified and ``spread_if_misspecified`` was asked for."""
+    computed when the residual is beyond the noise (a mismatch or misspecified) and
+    ``spread_if_mismatch`` was asked for."""
 
     @property
     def misspecified(self) -> bool:
@@ -374,7 +375,7 @@ def identify(
     w_psd: float = DEFAULT_W_PSD,
     extra: dict[str, ParameterSpec] | None = None,
     uncertainty: bool = True,
-    spread_if_misspecified: bool = False,
+    spread_if_mismatch: bool = False,
     echo: Callable[[str], None] | None = None,
 ) -> Identification:
     """Identify an actuator from recordings (see the module docstring).
@@ -391,9 +392,10 @@ def identify(
     in every step beside that step's own (the diagnosis re-identifies a baseline with
     an entry attached); ``uncertainty`` False skips the parameter uncertainty (one
     Jacobian on every recording unless the joint step ran last);
-    ``spread_if_misspecified`` repeats the joint step once per regime left out when
-    the fit is misspecified (:mod:`.model_check`, :mod:`.regime_spread`: what holds of
-    the parameters then; a few joint fits more); ``echo`` receives progress lines.
+    ``spread_if_mismatch`` repeats the joint step once per regime left out when the
+    residual is beyond the noise (:mod:`.model_check`, :mod:`.regime_spread`: a better
+    measure of the error than the standard errors then; a few joint fits more);
+    ``echo`` receives progress lines.
     """
     extra = dict(extra or {})
     say = echo or (lambda s: None)
@@ -588,7 +590,7 @@ def identify(
     say(f"[check] {check.statement()}")
     joint = next((r for r in reports if r.name == "joint" and r.result is not None), None)
     spread = None
-    if spread_if_misspecified and check.misspecified and joint is not None:
+    if spread_if_mismatch and not check.adequate and joint is not None:
         spread = regime_spread(
             data.recordings, joint.free,
             _refit_without(act, data, extra, stepping, programs, max_steps, say),
