@@ -157,3 +157,21 @@ def test_identify_rejects_unknown_fix_and_step(fixtures_dir, tmp_path):
     assert res.exit_code == 2 and "mass" in res.output
     res = run("identify", *data, "--out", tmp_path / "x", "--steps", "dynamics,magic")
     assert res.exit_code == 2 and "magic" in res.output
+
+
+def test_identify_says_when_it_replaces_the_start_thresholds_and_keeps_them_on_request(
+        fixtures_dir, tmp_path):
+    truth, data, init = _friction_case(fixtures_dir, tmp_path)
+    data = [*data, fixtures_dir / "identification" / "sine_40V_50Hz.csv"]
+    args = ("identify", *data, "--init", init, "--fix", "Ms=0.0247", "--steps",
+            "hysteresis,friction", "--no-figures")
+    res = run(*args, "--out", tmp_path / "grid")
+    assert res.exit_code == 0, res.output
+    assert "not on the 35 of" in res.stderr and "--keep-thresholds" in res.stderr
+    regridded = json.loads((tmp_path / "grid" / "params.json").read_text())
+    assert regridded["pi_thresholds"] != truth["pi_thresholds"]
+    res = run(*args, "--keep-thresholds", "--out", tmp_path / "kept")
+    assert res.exit_code == 0, res.output
+    assert "--keep-thresholds" not in res.stderr
+    kept = json.loads((tmp_path / "kept" / "params.json").read_text())
+    assert kept["pi_thresholds"] == truth["pi_thresholds"]

@@ -24,7 +24,8 @@ EPILOG = """Examples:
   stickslip contacts --params P.json --preloads 0.5,1,2,4 --spread lumped=1
   --spread equal=1,1,1,1,1,1 --spread uneven=6,5,4,2,1,1 --k-load 1e5 --out out/contacts
 
-Three studies of Nguyen 2012 (seed 2), each a batched simulation: step per period vs
+Three studies after Nguyen et al. 2012 (the second of the two papers the model follows:
+preload-dependent friction, multi-contact runners), each a batched simulation: step per period vs
 amplitude and the 0-amplitude threshold at several preloads (CEIM: z_ba and the
 contact stiffness grow with the preload, so the step falls); the same for several
 splits of the preload over the contacts of a multi-contact runner; the force

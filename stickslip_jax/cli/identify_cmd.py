@@ -85,7 +85,11 @@ def identify_command(
                                   "masses, dampings and stiffnesses: fix one of them."),
     steps: str = typer.Option("dynamics,hysteresis,friction,joint", "--steps",
                               help="Comma-separated steps to run, in this order."),
-    n_pi: int = typer.Option(35, "--n-pi", help="Number of PI play operators."),
+    n_pi: int = typer.Option(35, "--n-pi", help="Number of PI play operators, spread over "
+                             "the recorded voltages (replacing --init's thresholds)."),
+    keep_thresholds: bool = typer.Option(False, "--keep-thresholds", help="Fit the PI "
+                                         "weights on --init's own thresholds instead of "
+                                         "--n-pi thresholds over the recorded voltages."),
     free_ratio: bool = typer.Option(False, "--free-ratio", help="Also fit zba_ratio "
                                     "(z_ba/z_ss; fixed at the start value otherwise)."),
     fit_rho1: bool = typer.Option(False, "--fit-rho1", help="Also fit the contact damping "
@@ -123,6 +127,12 @@ def identify_command(
                       inputs=[init, *(r.source for r in recordings)])
         start = load_params_noting(init) if init is not None else lu2015_slc1720()
         check_actuator_plausible(start, init)
+        if init is not None and not keep_thresholds and (
+                "hysteresis" in step_list or "joint" in step_list):
+            n_start = int(start.hysteresis.thresholds.shape[0])
+            typer.echo(f"note: the PI weights are fitted on {n_pi} thresholds over the "
+                       f"recorded voltages (--n-pi), not on the {n_start} of {init}; "
+                       f"--keep-thresholds keeps those", err=True)
         # Locked before the fit, written whole or not at all (stickslip_jax.staging).
         with staged_folder(out, "identify", force=force) as stage:
             typer.echo(f"{len(recordings)} recording(s); start: "
@@ -131,6 +141,7 @@ def identify_command(
                 result = identify(recordings, init=start, fix=fixed, steps=step_list,
                                   n_pi=n_pi, free_ratio=free_ratio, fit_rho1=fit_rho1,
                                   max_steps=max_steps, spread_if_mismatch=True,
+                                  keep_thresholds=keep_thresholds,
                                   echo=lambda s: typer.echo(s, err=True))
             except ValueError as err:
                 raise fail(str(err)) from None

@@ -528,7 +528,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     # 2. Locate.
     analyses0, mismatch, hints = _locate(problem, base.q)
     say(f"[baseline] NRMSE {100 * base.nrmse.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
-        f"{len(mismatch)} recording(s) flagged; residual peaks {hints['peaks_Hz']}")
+        f"{len(mismatch)} recording(s) flagged; residual peaks "
+        f"{', '.join(f'{f:.0f} Hz' for f in hints['peaks_Hz']) or 'none'}")
     say(f"[budget] {budget.progress()}")
 
     # Identification steps a re-identification with an entry attached repeats (the

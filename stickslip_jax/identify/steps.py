@@ -376,6 +376,7 @@ def identify(
     extra: dict[str, ParameterSpec] | None = None,
     uncertainty: bool = True,
     spread_if_mismatch: bool = False,
+    keep_thresholds: bool = False,
     echo: Callable[[str], None] | None = None,
 ) -> Identification:
     """Identify an actuator from recordings (see the module docstring).
@@ -384,8 +385,9 @@ def identify(
     steps: the paper's elasto-plastic law, or any registered law that flags its own);
     ``fix`` names held at given SI values; ``steps`` which of ``dynamics, hysteresis,
     friction, joint`` to run, in that order; ``n_pi`` play operators over the recorded
-    voltage range when a step asked for fits the PI weights (otherwise the start's
-    hysteresis is held as it is); ``also_fit`` the law's on-request parameters to fit as well
+    voltage range when a step asked for fits the PI weights (otherwise, or with
+    ``keep_thresholds``, the start's thresholds are kept); ``also_fit`` the law's
+    on-request parameters to fit as well
     (``free_ratio`` is ``zba_ratio``, ``fit_rho1`` is ``rho1``); ``w_psd``
     weight of the step-response log-PSD term (see :class:`TraceResiduals`);
     ``extra`` quantities of a model extension already in ``init`` (name → spec), fitted
@@ -438,9 +440,9 @@ def identify(
                               data, np.full(len(data), np.nan), None,
                               notes + [informative.statement()], None, fix,
                               undetermined=informative)
-    if "hysteresis" in steps or "joint" in steps:
-        # Fitted: n_pi thresholds over the recorded voltages. Held, the start's
-        # hysteresis stays as given (a new grid would change the model held).
+    if ("hysteresis" in steps or "joint" in steps) and not keep_thresholds:
+        # Fitted: n_pi thresholds over the recorded voltages. Held (or asked to keep
+        # them), the start's hysteresis keeps its grid (a new one changes the model).
         act = pi_over_range(act, data.recordings, n_pi)
 
     step_recs = [r for r in data.recordings if _is_step(r)]
