@@ -154,8 +154,8 @@ def _read_manifest(folder: Path) -> dict[str, list[str]]:
 
 
 class Stage:
-    """Staged outputs of one command: ``(staged path, final path)`` pairs, a staging
-    folder to remove, and the locks held. Made by :func:`staged_folder` and
+    """One command's staging folder, the locks it holds on its outputs, and whether
+    they were committed or aborted. Made by :func:`staged_folder` and
     :func:`staged_files`."""
 
     def __init__(self, root: Path, locks: list[OutputLock]):
@@ -294,7 +294,7 @@ def _move(src: Path, dest: Path) -> None:
     except OSError as err:
         if err.errno != errno.EXDEV:
             raise
-    tmp = dest.parent / f"{STAGING_PREFIX}{secrets.token_hex(4)}"
+    tmp = dest.parent / f"{STAGING_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
     if src.is_dir():
         shutil.copytree(src, tmp)
     else:

@@ -72,7 +72,6 @@ def diagnose_command(
         setup_jax()
         from ..diagnose import NAMES, diagnose
         from ..diagnose.report import named_line, unexplained_line, write_diagnosis
-        from ..identify.sampling import check_sample_rates
         from ..model.profiles import lu2015_slc1720
         from ..plausibility import check_actuator_plausible
         from ..staging import staged_folder
@@ -103,7 +102,6 @@ def diagnose_command(
                       inputs=[params, *inputs])
         start = load_params_noting(params) if params is not None else lu2015_slc1720()
         check_actuator_plausible(start, params)
-        check_sample_rates(recordings, start)  # also for --skip-identify
         # Locked before the diagnosis, written whole or not at all (stickslip_jax.staging).
         with staged_folder(out, "diagnose", force=force) as stage:
             typer.echo(f"{len(recordings)} recording(s); start: "

@@ -96,6 +96,7 @@ import numpy as np
 from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap, scale_invariant_names
 from ..identify.residuals import dataset_plan, numerical_error
+from ..identify.sampling import check_sample_rates
 from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
 from ..noise import noise_sigma, noise_sigma_relative_se
@@ -500,6 +501,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     t_all = time.perf_counter()
     budget = Budget(work_budget)
     data = Dataset.from_recordings(recordings)
+    check_sample_rates(data.recordings, init)  # before anything, --skip-identify too
     fix = dict(fix or {})
     notes: list[str] = []
     if not any(n in fix for n in scale_invariant_names(init)):
