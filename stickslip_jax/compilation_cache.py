@@ -8,8 +8,8 @@ protocol and actuator (new recordings of it: a diagnosis in 34 s instead of 76 s
 a second test worker diagnosing the same recordings. A program is the actuator's
 structure at the recordings' lengths and a stepping plan, whose sub-steps are planned
 from the actuator's time scales, so another actuator's data compile their own (issue
-#27, 9c9b250; benchmarks/results/compilation_cache.json). An executable read from the
-cache is the one a compile would make: results do not change, only the time.
+#27, 9c9b250; benchmarks/experiments/results/compilation_cache.json). An executable
+read from the cache is the one a compile would make: results do not change, only the time.
 
 Several processes share one cache (the two pytest workers; commands run side by side).
 JAX locks the cache's reads and writes, and evicts its least recently used entries,

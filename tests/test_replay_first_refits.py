@@ -1,4 +1,4 @@
-"""benchmarks/replay_first_refits.py: round one's first refits rebuilt from a recorded
+"""benchmarks/experiments/replay_first_refits.py: round one's first refits rebuilt from a recorded
 row follow :func:`stickslip_jax.diagnose.rules.first_refits` under either policy."""
 
 import dataclasses
@@ -7,7 +7,8 @@ from pathlib import Path
 
 from stickslip_jax.diagnose import Policy
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "replay_first_refits.py"
+SCRIPT = (Path(__file__).resolve().parents[1] / "benchmarks" / "experiments"
+          / "replay_first_refits.py")
 
 
 def _script():

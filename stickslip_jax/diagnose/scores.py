@@ -92,7 +92,7 @@ program's native-loop kernel grows faster than the kernel. The whole catalogue's
 quantities in one program compiled in 23, 27 and 29 s; in two of 5 and 6, in 20, 19
 and 23 s together; in three (3, 5, 3), 33 s (each program also compiles the
 simulator once); the second call costs about 0.3 s more (issue #27, measured at
-8196fdd: benchmarks/results/diagnose_score_batches_s46.json)."""
+8196fdd: benchmarks/experiments/results/diagnose_score_batches.json)."""
 
 
 def probe_batches(act: Actuator, candidates: Sequence[Candidate], hints: dict,

@@ -35,7 +35,7 @@ sample on fast ramps. The floor also acts as where the held sizing leaves τ (it
 to the floor with the baseline held), so the refit's start: from a thousandth, one
 concealed set's drive refit stalled near the floor (1.23e5 against 80 669 from a
 hundredth) and a dev set's reached a better fit below a hundredth (27 847 against
-35 405). Neither is a reason for a value (8e406bf; benchmarks/results/
+35 405). Neither is a reason for a value (8e406bf; benchmarks/experiments/results/
 diagnose_set03_slew_exact.json and diagnose_dev_slew_exact.json)."""
 
 

@@ -2,7 +2,7 @@
 program name, against the wall time, for diagnoses run one after the other in one
 process (as a test worker runs them).
 
-    .venv/bin/python benchmarks/bench_diagnose_compiling.py creep sensor_delay \\
+    .venv/bin/python benchmarks/experiments/bench_diagnose_compiling.py creep sensor_delay \\
         --json out/bench_diagnose_compiling.json
 
 The data and settings are tests/test_diagnose.py's: the reduced protocol (8 recordings
@@ -16,12 +16,14 @@ cache a first run filled, what is left is tracing and lowering; the JSON records
 
 import argparse
 import collections
+import sys
 import time
 from pathlib import Path
 
-from results_record import write_record
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: results_record
+from results_record import write_record  # noqa: E402
 
-import stickslip_jax as ss
+import stickslip_jax as ss  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
@@ -34,7 +36,7 @@ from stickslip_jax.compilation_cache import (  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import with_effect  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 CACHE_DIR = cache_dir_from_env(default=None)
 CACHE_ON = use_compilation_cache(CACHE_DIR)
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"

@@ -12,7 +12,7 @@ diagnosis is run again. It replays the rule only: an entry the recorded run neve
 refitted has no refit to show, and later passes (fallbacks, second looks) are not
 replayed. Do not replay a policy on the frozen test split to choose it: that is tuning.
 
-    .venv/bin/python benchmarks/replay_first_refits.py out/split_dev.json \\
+    .venv/bin/python benchmarks/experiments/replay_first_refits.py out/split_dev.json \\
         --set competitive_share=0 --set leader_alone_share=inf
 """
 

@@ -2,7 +2,7 @@
 (``identify.steps.REPLAN_FACTOR``), side by side: wall time, the joint step's steps and
 time, its final cost and the sub-steps it ended at.
 
-    .venv/bin/python benchmarks/bench_replan.py --sets set_04,dev5,delay_8us \\
+    .venv/bin/python benchmarks/experiments/bench_replan.py --sets set_04,dev5,delay_8us \\
         --repeats 2 --json out/bench_replan.json
 
 Each (set, setting, repeat) runs in a fresh Python process, so each compiles its own
@@ -24,13 +24,15 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+BENCHMARKS = HERE.parent  # bench_diagnose.py
+ROOT = BENCHMARKS.parent
 
 CHILD = r"""
 import json, sys, time
 import jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np
-sys.path.insert(0, {here!r})
+sys.path.insert(0, {benchmarks!r})
 import stickslip_jax as ss
 from stickslip_jax.identify import steps as identify_steps
 from stickslip_jax.identify.dataset import Dataset
@@ -65,9 +67,9 @@ print("ROW " + json.dumps({{
 
 def run_child(name: str, replan: bool) -> dict:
     env = {**os.environ, "STICKSLIP_CACHE_DIR": "off",
-           "PYTHONPATH": str(HERE.parent) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    out = subprocess.run([sys.executable, "-c", CHILD.format(here=str(HERE), name=name,
-                                                             replan=replan)],
+           "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    child = CHILD.format(benchmarks=str(BENCHMARKS), name=name, replan=replan)
+    out = subprocess.run([sys.executable, "-c", child],
                          capture_output=True, text=True, env=env, check=False)
     rows = [line[4:] for line in out.stdout.splitlines() if line.startswith("ROW ")]
     if out.returncode != 0 or not rows:

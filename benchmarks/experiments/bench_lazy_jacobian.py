@@ -2,7 +2,8 @@
 evaluation first and the Jacobian at accepted points only (lazy, the solver's
 ``value``, the default of the identification steps and the diagnosis's fits).
 
-    .venv/bin/python benchmarks/bench_lazy_jacobian.py --json out/bench_lazy_jacobian.json
+    .venv/bin/python benchmarks/experiments/bench_lazy_jacobian.py \\
+        --json out/bench_lazy_jacobian.json
 
 The data: the diagnosis tests' reduced protocol (8 recordings of 0.02-0.06 s at
 25 kHz, 1 nm noise, seed 7) with a creep hidden in it (fixture form), as
@@ -24,13 +25,16 @@ Jacobian and value evaluations.
 
 import argparse
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from results_record import write_record
 
-import stickslip_jax as ss
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: results_record
+from results_record import write_record  # noqa: E402
+
+import stickslip_jax as ss  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
@@ -44,7 +48,7 @@ from stickslip_jax.identify.steps import JOINT_GN_TOL  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import with_effect  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 TRUTH = ROOT / "fixtures" / "identification" / "truth.json"
 MAX_STEPS = 25
 
