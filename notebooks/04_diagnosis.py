@@ -51,7 +51,7 @@ import numpy as np
 
 import stickslip_jax as ss
 from stickslip_jax.diagnose.locate import residual_of
-from stickslip_jax.identify.residuals import _psd
+from stickslip_jax.identify.residuals import periodogram_psd
 
 ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
 
@@ -108,7 +108,7 @@ axes[0].set_title(f"{rec.name}: residual in time")
 axes[0].legend(fontsize=8)
 level = d.sigmas[worst] ** 2 * rec.dt
 for e, label in ((e0, "baseline"), (e1, "after diagnosis")):
-    f, p = _psd(e, rec.dt, np)
+    f, p = periodogram_psd(e, rec.dt, np)
     axes[1].loglog(f[1:], p[1:] / level, lw=0.7, label=label)
 axes[1].axhline(1.0, color="k", ls="--", lw=0.8, label="noise level")
 axes[1].set_xlabel("f [Hz]")

@@ -32,8 +32,9 @@ def main(argv=None) -> int:
             continue
         ref = load_recording(rec_path)
         sim = load_recording(sim_path).position_m
-        nrmse = np.sqrt(np.mean((sim - ref.position_m) ** 2)) / np.ptp(ref.position_m)
-        rows.append((rec_path.stem, nrmse))
+        rms = float(np.sqrt(np.mean((sim - ref.position_m) ** 2)))
+        nrmse = rms / np.ptp(ref.position_m)
+        rows.append((rec_path.stem, nrmse, rms))
         if args.plot:
             from stickslip_jax.plots import plot_trace
 
@@ -41,9 +42,9 @@ def main(argv=None) -> int:
                        meas_label=REFERENCE_LABEL,
                        title=f"{ref.name}: NRMSE {100 * nrmse:.4f} % against the reference",
                        path=args.sim_dir / f"{rec_path.stem}.png")
-    print(f"{'recording':28s} NRMSE [%]")
-    for name, value in rows:
-        print(f"{name:28s} {100 * value:.4f}")
+    print(f"{'recording':28s} {'NRMSE [%]':>10s} {'RMS [nm]':>9s}")
+    for name, value, rms in rows:
+        print(f"{name:28s} {100 * value:10.2e} {rms * 1e9:9.4f}")
     return 0 if rows else 1
 
 

@@ -801,7 +801,8 @@ def load_recording(path: PathLike, *, require_output: bool = True) -> Recording:
     return _load_csv(path, require_output=require_output)
 
 
-def _recording_files(folder: Path) -> list[Path]:
+def recording_files(folder: Path) -> list[Path]:
+    """The recording files (``.csv``, ``.npz``) directly in ``folder``, by name."""
     # Hidden files are skipped: they include the temporary files of an unfinished
     # atomic write (".name.xxxx.tmp") and editors' lock files.
     return sorted(
@@ -842,7 +843,7 @@ def load_recordings(
     files: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            found = _recording_files(p)
+            found = recording_files(p)
             if not found:
                 raise RecordingError(
                     p, None, "the folder holds no recordings (*.csv or *.npz files)",

@@ -33,6 +33,39 @@ def legend_on_labelled(axes, **kwargs):
     return None
 
 
+LINE_STYLES = ("-", "--", "-.", ":")
+MARKERS = ("o", "s", "^", "D", "v", "P")
+
+
+def curve_style(i: int) -> dict:
+    """Line style, marker and marker size of the ``i``-th of several curves on one
+    axes, all different from their neighbours' (hollow markers, shrinking), so that a
+    curve drawn over another that it equals leaves the one beneath visible."""
+    return {"ls": LINE_STYLES[i % len(LINE_STYLES)], "marker": MARKERS[i % len(MARKERS)],
+            "ms": max(6.5 - 1.2 * (i % 4), 2.5), "mfc": "none", "mew": 0.9}
+
+
+def coincident_labels(names, curves, *, rel: float = 0.01, unit: str = "",
+                      scale: float = 1.0) -> list[str]:
+    """For each curve (rows of ``curves``, all on one grid), a note naming the first
+    earlier curve it coincides with: largest difference within ``rel`` of the largest
+    |value| of all curves; ``""`` where it coincides with none. The difference is
+    written in ``unit`` after multiplying by ``scale``."""
+    c = np.asarray(curves, dtype=float)
+    finite = np.abs(c[np.isfinite(c)])
+    tol = rel * (float(finite.max()) if finite.size else 0.0)
+    out = []
+    for i in range(len(c)):
+        note = ""
+        for j in range(i):
+            diff = float(np.nanmax(np.abs(c[i] - c[j]))) if c.shape[1] else 0.0
+            if diff <= tol:
+                note = f" (= {names[j]} within {diff * scale:.2g}{unit})"
+                break
+        out.append(note)
+    return out
+
+
 def colormap(name: str):
     """A named matplotlib colormap."""
     import matplotlib
@@ -55,7 +88,9 @@ def plot_trace(time_s, voltage_V, q_sim_m, *, q_meas_m=None, noise_m=None,
 
     ``time_s`` [s], ``voltage_V`` [V], ``q_sim_m`` and ``q_meas_m`` [m] (plotted in µm).
     The measured trace is drawn first, wide and light, and the simulated one on top,
-    thin and dashed, so both stay visible where they agree. With ``q_meas_m`` a third
+    thin and dashed, so both stay visible where they agree (alone, the simulated trace
+    is drawn solid). Every panel has a legend inside its axes naming each trace (the
+    residual panel gets head room above its trace for it). With ``q_meas_m`` a third
     panel shows ``q_sim − q_meas`` [nm] less its mean (the best constant offset of
     docs/model.md "Fit quality") with the ±1σ band of the sensor noise: ``noise_m``
     [m] when given (e.g. ``stickslip_jax.noise.noise_sigma`` of the recording), 0 for
@@ -73,19 +108,22 @@ def plot_trace(time_s, voltage_V, q_sim_m, *, q_meas_m=None, noise_m=None,
     else:
         fig, (ax_u, ax_q, ax_r) = subplots(3, 1, sharex=True, figsize=(8, 6.6),
                                            gridspec_kw={"height_ratios": [1, 2, 1.4]})
-    ax_u.plot(t_ms, voltage_V, color="tab:gray", lw=0.8)
+    ax_u.plot(t_ms, voltage_V, color="tab:gray", lw=0.8, label="drive voltage U")
     ax_u.set_ylabel("U [V]")
+    lo, hi = ax_u.get_ylim()
+    ax_u.set_ylim(lo, hi + 0.45 * (hi - lo))  # head room: a drive at its top leaves none
+    ax_u.legend(loc="upper right", fontsize=7, framealpha=0.85)
     if q_meas_m is not None:
         q_meas = np.asarray(q_meas_m, dtype=float)
         ax_q.plot(t_ms, q_meas * 1e6, color="0.55", lw=2.6, alpha=0.8, zorder=1,
                   solid_capstyle="butt", label=meas_label)
-    ax_q.plot(t_ms, q_sim * 1e6, color="tab:blue", lw=0.9, ls=(0, (4, 2)), zorder=3,
-              label="simulated")
+    ax_q.plot(t_ms, q_sim * 1e6, color="tab:blue", lw=0.9, zorder=3,
+              ls="-" if q_meas_m is None else (0, (4, 2)), label="simulated q")
     ax_q.set_ylabel("q = x1 + x2 [µm]")
+    ax_q.legend(loc="best", fontsize=8, framealpha=0.85)
     if q_meas_m is None:
         ax_q.set_xlabel("time [ms]")
     else:
-        ax_q.legend(loc="best", fontsize=8)
         resid = q_sim - q_meas
         resid = resid - resid.mean()
         sigma = sigma_from_differences(q_meas) if noise_m is None else float(noise_m)
@@ -100,8 +138,11 @@ def plot_trace(time_s, voltage_V, q_sim_m, *, q_meas_m=None, noise_m=None,
         ax_r.axhline(0.0, color="k", lw=0.5, zorder=1)
         ax_r.set_ylabel("residual [nm]")
         ax_r.set_xlabel("time [ms]")
-        ax_r.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, fontsize=7,
-                    frameon=False, borderaxespad=0.1)
+        # The legend inside the axes, over head room added above the trace (outside,
+        # a long label ran off the figure's edge).
+        lo, hi = ax_r.get_ylim()
+        ax_r.set_ylim(lo, hi + 0.75 * (hi - lo))
+        ax_r.legend(loc="upper left", ncol=1, fontsize=7, framealpha=0.85)
     if title:
         ax_u.set_title(title, fontsize=10)
     fig.align_ylabels()

@@ -125,7 +125,7 @@ def _scan(actuator: Actuator, voltage, dt, drive, plan: StepPlan, *, keep_states
     return jnp.concatenate([carry[0][None], ys]), jnp.concatenate([q0[None], qs])
 
 
-def _model_output(actuator: Actuator, voltage, dt, drive, plan: StepPlan):
+def model_output(actuator: Actuator, voltage, dt, drive, plan: StepPlan):
     """Unmapped model output q [m] at every sample of ``voltage`` [V] (length T)."""
     return _scan(actuator, voltage, dt, drive, plan)
 
@@ -146,7 +146,7 @@ def _simulate(actuator, voltage, dt, drive, plan, adjoint=DEFAULT_ADJOINT):
 
     def run(dynamic, voltage):
         actuator, dt, drive = eqx.combine(dynamic, static)
-        q = _model_output(actuator, voltage, dt, drive, plan)
+        q = model_output(actuator, voltage, dt, drive, plan)
         t = dt * jnp.arange(voltage.shape[0])
         return actuator.output_map(t, q)
 

@@ -112,7 +112,7 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
     assert d["verdict"] == "augmented"
     m = d["missing_physics"][0]
     assert m["name"] == "sensor_delay"
-    assert m["nrmse_after"] < 0.5 * m["nrmse_before"]
+    assert m["nrmse_after_percent"] < 0.5 * m["nrmse_before_percent"]
     assert 10e-6 < m["params"]["sensor_delay"] < 20e-6  # the hidden delay is 15 µs
     assert {"recording", "regime", "time_s", "band_Hz", "statistic"} <= set(d["mismatch"][0])
     assert isinstance(d["residual_peaks_Hz"], list)

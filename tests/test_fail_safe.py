@@ -21,7 +21,7 @@ from stickslip_jax.files import OutputExistsError
 from stickslip_jax.identify.dataset import Dataset
 from stickslip_jax.identify.model_check import MODEL_ERROR_OVER_NOISE, check_model
 from stickslip_jax.identify.regime_spread import jackknife_spread, regime_spread
-from stickslip_jax.identify.solve import SolveResult
+from stickslip_jax.identify.solve import SolveResult, SolveStatus
 from stickslip_jax.identify.steps import Identification, StepReport
 from stickslip_jax.staging import (
     MANIFEST,
@@ -56,7 +56,8 @@ def leftovers(folder: Path) -> list[str]:
 
 
 def _solve(converged: bool, message: str) -> SolveResult:
-    return SolveResult(np.zeros(1), converged, message, 60 if not converged else 4, 0.0,
+    status = SolveStatus.CONVERGED if converged else SolveStatus.STEP_CAP
+    return SolveResult(np.zeros(1), status, message, 60 if not converged else 4, 0.0,
                        1.0, 0.5)
 
 

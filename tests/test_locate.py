@@ -15,7 +15,7 @@ from stickslip_jax.diagnose.locate import (
     phase_segments,
     residual_peaks,
 )
-from stickslip_jax.identify.residuals import _psd
+from stickslip_jax.identify.residuals import periodogram_psd
 from stickslip_jax.synthetic import DriveSpec
 
 
@@ -71,7 +71,7 @@ def test_drive_harmonics_are_no_resonance(stepping):
     sigma = 1e-9
     mismatch = _periodic_mismatch(t, 500.0, 20e-9)
     # Counted as they are, the harmonics are the peaks (the fundamental first).
-    f, psd = _psd(mismatch + (rec.position_m - q), rec.dt, np)
+    f, psd = periodogram_psd(mismatch + (rec.position_m - q), rec.dt, np)
     level = psd / (sigma**2 * rec.dt)
     plain = harmonic_prominence(f, level, None)
     assert np.array_equal(plain, level)

@@ -53,6 +53,17 @@ def test_missing_required_names(ref_params):
         ss.actuator_from_params(ref_params)
 
 
+def test_the_directional_values_win_over_the_shorthand(ref_params):
+    # z_ba sets only the directions a file leaves out (docs/model.md); written files
+    # no longer carry it, so that every value in them is read.
+    ref_params.update(z_ba=0.6e-6, z_ba_forward=0.4e-6, z_ba_backward=0.45e-6)
+    f = ss.actuator_from_params(ref_params).friction
+    assert (float(f.z_ba_forward), float(f.z_ba_backward)) == (0.4e-6, 0.45e-6)
+    del ref_params["z_ba_backward"]
+    assert float(ss.actuator_from_params(ref_params).friction.z_ba_backward) == 0.6e-6
+    assert "z_ba" not in ss.params_from_actuator(ss.actuator_from_params(ref_params))
+
+
 def test_z_ba_alone_sets_both_directions(ref_params):
     for k in ("z_ba_forward", "z_ba_backward"):
         del ref_params[k]

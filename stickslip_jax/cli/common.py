@@ -255,12 +255,12 @@ def load_recordings_reporting_all(paths, *, require_output: bool = True):
     """:func:`stickslip_jax.io.load_recordings` (files and folders, each file once, in
     the order given), but every file is read and every bad one reported: raises
     :class:`RecordingErrors` naming them all instead of stopping at the first."""
-    from ..io import RecordingError, _recording_files, load_recording, load_recordings
+    from ..io import RecordingError, load_recording, load_recordings, recording_files
 
     files: list[Path] = []
     for p in map(Path, paths):
-        if p.is_dir() and _recording_files(p):
-            files.extend(_recording_files(p))
+        if p.is_dir() and recording_files(p):
+            files.extend(recording_files(p))
         else:
             files.append(p)
     unique: dict[Path, Path] = {}
@@ -323,3 +323,37 @@ def load_actuator(params: Path | None, zba_surface: Path | None = None):
         except (KeyError, ValueError) as err:
             raise fail(f"--zba-surface {zba_surface}: {err}") from None
     return actuator
+
+
+def parse_fix(items: list[str]) -> dict[str, float]:
+    """``--fix NAME=VALUE`` options [SI] as a dictionary, each name checked against
+    what the identification may hold (the piezo and slider mechanics and every
+    registered law's fittable quantities); ParameterError otherwise."""
+    from ..identify.parameters import MECHANICS, law_fittable
+    from ..model.registry import FRICTION_LAWS
+    from ..params import ParameterError
+
+    # The fittable quantities of every registered law that the identification fits
+    # (the starting file says which law; identify checks the names against it).
+    may_be_zero = {}
+    for law in FRICTION_LAWS.values():
+        if any(p.step for p in law_fittable(law)):
+            for p in law_fittable(law):
+                may_be_zero.setdefault(p.name, p.fit_kind == "softplus")
+    fixable = list(MECHANICS) + list(may_be_zero)
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep:
+            raise ParameterError(f"--fix {item!r}: expected NAME=VALUE (SI), e.g. Ms=0.0247")
+        if name not in fixable:
+            raise ParameterError(f"--fix {item!r}: {name!r} is not a fixable parameter; "
+                                 f"choose from {', '.join(fixable)}")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise ParameterError(f"--fix {item!r}: {value!r} is not a number") from None
+        if not out[name] > 0 and not may_be_zero.get(name, False):
+            raise ParameterError(f"--fix {item!r}: {name} must be positive")
+    return out

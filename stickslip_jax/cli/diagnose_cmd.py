@@ -13,10 +13,10 @@ from .common import (
     fail,
     load_params_noting,
     load_recordings_reporting_all,
+    parse_fix,
     reported_errors,
     setup_jax,
 )
-from .identify_cmd import _parse_fix
 
 EPILOG = """Examples:
 
@@ -93,7 +93,7 @@ def diagnose_command(
                        "default")
         if skip_identify and params is None:
             raise fail("--skip-identify needs --params (the identified baseline)")
-        fixed = _parse_fix(fix)
+        fixed = parse_fix(fix)
         recordings = load_recordings_reporting_all(data)
         inputs = [r.source for r in recordings if r.source]
         names = ["diagnosis.json", "report.md"] + ([] if no_figures else [

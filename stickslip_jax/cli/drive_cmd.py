@@ -30,6 +30,10 @@ EPILOG = """Examples:
 For every frequency the amplitude whose simulated steady-state velocity (phase-locked,
 after --settle start-up periods) is the wanted one, found by bracketing on a velocity
 map over --amplitudes and secant refinement, with the step per period it gives.
+A drive counts only where it is stepping (docs/model.md, "Drives and recordings") and
+within 0.5 % of the velocity; a printed row that is not is marked NOT REACHED and the
+command exits 3 (frequencies beyond the amplitude range are listed, not printed as
+drives).
 """
 
 
@@ -95,12 +99,27 @@ def drive_command(
     typer.echo(f"  {'frequency_Hz':>12s} {'amplitude_V':>12s} {'velocity_um_s':>14s} "
                f"{'step_nm':>10s}  note")
     for c in choices:
-        note = "" if c.reached else f"not reached reliably ({c.regime})"
         typer.echo(f"  {c.frequency_Hz:12.6g} {c.amplitude_V:12.4f} "
-                   f"{c.velocity_m_s * 1e6:14.5g} {c.step_m * 1e9:10.4g}  {note}")
+                   f"{c.velocity_m_s * 1e6:14.5g} {c.step_m * 1e9:10.4g}  {_note(c, signed)}")
     for f in unreachable:
         typer.echo(f"  {f:12.6g} {'-':>12s} {'-':>14s} {'-':>10s}  beyond the amplitude range")
     if out is not None:
         typer.echo(f"wrote {out}")
-    if not any(c.reached for c in choices):
-        raise typer.Exit(3)
+    missed = [c for c in choices if not c.reached]
+    if missed or not choices:
+        # A printed drive that does not give the velocity is not a result: exit 3.
+        where = ", ".join(f"{c.frequency_Hz:g} Hz" for c in missed) or "any frequency"
+        stand = "; the other rows stand" if len(missed) < len(choices) else ""
+        raise fail(f"the velocity was not reached at {where}{stand}. Fix: drop those "
+                   f"frequencies, or widen --amplitudes.", code=3)
+
+
+def _note(choice, wanted_m_s: float) -> str:
+    """Why a printed drive is not a result: off the wanted velocity, or not stepping
+    (stickslip_jax.regime: velocity there is no monotone function of amplitude)."""
+    if choice.reached:
+        return ""
+    off = 100 * (abs(choice.velocity_m_s) / abs(wanted_m_s) - 1)
+    if choice.regime != "stepping":
+        return f"NOT REACHED: scanning, not stepping ({off:+.1f} % off)"
+    return f"NOT REACHED: {off:+.1f} % off after the refinement"

@@ -13,6 +13,7 @@ from .common import (
     fail,
     load_params_noting,
     load_recordings_reporting_all,
+    parse_fix,
     reported_errors,
     setup_jax,
 )
@@ -40,37 +41,6 @@ larger than their noise; fit.json: model_check): params.json is written, marked
 value is printed with its spread over leave-one-regime-out fits beside its standard
 error (which assumes the model right). `stickslip diagnose` names what is left out.
 """
-
-
-def _parse_fix(items: list[str]) -> dict[str, float]:
-    from ..identify.parameters import MECHANICS, law_fittable
-    from ..model.registry import FRICTION_LAWS
-    from ..params import ParameterError
-
-    # The fittable quantities of every registered law that the identification fits
-    # (the starting file says which law; identify checks the names against it).
-    may_be_zero = {}
-    for law in FRICTION_LAWS.values():
-        if any(p.step for p in law_fittable(law)):
-            for p in law_fittable(law):
-                may_be_zero.setdefault(p.name, p.fit_kind == "softplus")
-    fixable = list(MECHANICS) + list(may_be_zero)
-    out = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        name = name.strip()
-        if not sep:
-            raise ParameterError(f"--fix {item!r}: expected NAME=VALUE (SI), e.g. Ms=0.0247")
-        if name not in fixable:
-            raise ParameterError(f"--fix {item!r}: {name!r} is not a fixable parameter; "
-                                 f"choose from {', '.join(fixable)}")
-        try:
-            out[name] = float(value)
-        except ValueError:
-            raise ParameterError(f"--fix {item!r}: {value!r} is not a number") from None
-        if not out[name] > 0 and not may_be_zero.get(name, False):
-            raise ParameterError(f"--fix {item!r}: {name} must be positive")
-    return out
 
 
 def identify_command(
@@ -118,7 +88,7 @@ def identify_command(
                        f"{','.join(STEPS)}")
         if n_pi < 1:
             raise ParameterError(f"--n-pi {n_pi}: need at least one play operator")
-        fixed = _parse_fix(fix)
+        fixed = parse_fix(fix)
         recordings = load_recordings_reporting_all(data)
         # Every file the identification may write, checked before the fit.
         paths = [p for p in output_paths(out, recordings)
@@ -169,8 +139,8 @@ def print_identification(result, summary: dict, written: dict) -> None:
         typer.echo(f"note: {note}")
     o = summary["overall"]
     ratio = o["nrmse_over_floor"]  # None when the data show no noise at all
-    typer.echo(f"overall NRMSE {100 * o['nrmse']:.4f} % (noise floor "
-               f"{100 * o['noise_floor_nrmse']:.4f} %, ratio "
+    typer.echo(f"overall NRMSE {o['nrmse_percent']:.4f} % (noise floor "
+               f"{o['noise_floor_nrmse_percent']:.4f} %, ratio "
                f"{'n/a' if ratio is None else format(ratio, '.3f')})")
     if check is not None and not result.misspecified:
         typer.echo(f"check: {check.statement()}")

@@ -27,9 +27,9 @@ import numpy as np
 from scipy import stats
 
 from ..identify.report import classify_regime
-from ..identify.residuals import _psd
+from ..identify.residuals import periodogram_psd
 from ..noise import noise_sigma
-from .policy import DEFAULT_POLICY
+from ..significance import SIGNIFICANCE_Z
 
 LJUNG_BOX_LAGS = 20
 STRUCTURE_CHI2 = 1.10
@@ -122,7 +122,7 @@ def third_octave_bands(f_lo: float, f_hi: float) -> np.ndarray:
 
 def band_excess(e, dt, sigma) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residual PSD over noise level per 1/3-octave band: ``(lo, hi, ratio)`` arrays."""
-    f, psd = _psd(e, dt, np)
+    f, psd = periodogram_psd(e, dt, np)
     edges = third_octave_bands(max(f[1], 10.0), 0.5 / dt)
     level = sigma**2 * dt
     lo, hi, ratio = [], [], []
@@ -187,11 +187,6 @@ def mismatch_entries(analyses: list[RecordingResidual]) -> list[dict]:
     return out
 
 
-HARMONIC_NOISE_Z = DEFAULT_POLICY.significance_z
-"""Standard deviations of the noise's scatter of a harmonic's level (``sqrt(2E)`` in
-noise units at an envelope ``E``: the cross term of a harmonic with the noise) that
-its excess over the envelope must pass to count (:func:`harmonic_prominence`): the
-tolerance's (:attr:`~.policy.Policy.significance_z`)."""
 
 PEAK_OCTAVES = 0.5
 """Half an octave: how far apart two residual peaks must be (:func:`residual_peaks`),
@@ -211,15 +206,18 @@ def harmonic_bins(f: np.ndarray, drive_Hz: float) -> tuple[np.ndarray, list[np.n
     return orders, [np.flatnonzero(np.abs(f - k * drive_Hz) <= 1.01 * df) for k in orders]
 
 
-def harmonic_prominence(f: np.ndarray, level: np.ndarray,
-                        drive_Hz: float | None) -> np.ndarray:
+def harmonic_prominence(f: np.ndarray, level: np.ndarray, drive_Hz: float | None, *,
+                        noise_z: float = SIGNIFICANCE_Z) -> np.ndarray:
     """``level`` (a residual PSD over its noise level, 1 for white noise, at the
     frequencies ``f`` [Hz] of one recording) with each harmonic ``k·drive_Hz`` of a
     periodic drive (the bins within one bin of it) counted only by its prominence over
     the harmonics around it: ``1 + max(level − L − z·sqrt(2L), 0)``. ``L``, the
     envelope, is the geometric mean of the median peak of the harmonics below it and of
     those above it, each side within :data:`PEAK_OCTAVES`; ``z·sqrt(2L)``
-    is the noise's scatter of a harmonic at that level (:data:`HARMONIC_NOISE_Z`).
+    is the noise's scatter of a harmonic at that level: ``z = noise_z`` standard
+    deviations of it (``sqrt(2E)`` in noise units at an envelope ``E``, the cross term
+    of a harmonic with the noise), the diagnosis's
+    :attr:`~.policy.Policy.significance_z`.
     Where a side has no harmonic, the noise level 1. ``drive_Hz`` None or 0 (a step,
     no periodic drive): ``level`` unchanged.
 
@@ -248,7 +246,7 @@ def harmonic_prominence(f: np.ndarray, level: np.ndarray,
             envelope = np.sqrt(np.median(below) * np.median(above))
             # The noise moves a harmonic of level E by about sqrt(2E) (its cross term
             # with the harmonic): only what stands above that counts.
-            spread = HARMONIC_NOISE_Z * np.sqrt(2.0 * envelope)
+            spread = noise_z * np.sqrt(2.0 * envelope)
             out[b] = 1.0 + np.maximum(level[b] - envelope - spread, 0.0)
         else:
             out[b] = 1.0
@@ -287,19 +285,20 @@ def level_on_grid(f: np.ndarray, level: np.ndarray, drive_Hz: float | None,
     return np.where(np.isfinite(binned), binned, out)
 
 
-def residual_peaks(recs, q_sims, sigmas, *, band=(300.0, 10_000.0), n_peaks: int = 2):
+def residual_peaks(recs, q_sims, sigmas, *, band=(300.0, 10_000.0), n_peaks: int = 2,
+                   noise_z: float = SIGNIFICANCE_Z):
     """Frequencies [Hz] where the residual PSDs, averaged over recordings in units of
     their noise level, peak inside ``band``: candidates for an unmodelled resonance.
     Peaks are at least a factor 5 over the noise and half an octave apart. A periodic
     drive's harmonics count by their prominence over the neighbouring harmonics
-    (:func:`harmonic_prominence`), each in the grid cell that holds it
+    (:func:`harmonic_prominence`, ``noise_z``), each in the grid cell that holds it
     (:func:`level_on_grid`)."""
     grid = np.geomspace(band[0], band[1], 160)
     total = np.zeros_like(grid)
     for rec, q, s in zip(recs, q_sims, sigmas, strict=True):
-        f, psd = _psd(residual_of(rec, q), rec.dt, np)
+        f, psd = periodogram_psd(residual_of(rec, q), rec.dt, np)
         periodic = rec.drive.frequency_Hz if rec.drive.waveform != "step" else None
-        level = harmonic_prominence(f, psd / (s**2 * rec.dt), periodic)
+        level = harmonic_prominence(f, psd / (s**2 * rec.dt), periodic, noise_z=noise_z)
         total += level_on_grid(f, level, periodic, grid)
     total /= max(len(recs), 1)
     peaks = []

@@ -16,13 +16,9 @@ from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap
 from ..identify.residuals import TraceResiduals, dataset_plan, default_batching
 from ..identify.sensitivities import RecordingPrograms, StepJacobian, perturbed_mask
-from ..identify.solve import ColumnSplitJacobian, solve_least_squares
-from ..identify.steps import (
-    JOINT_GN_TOL,
-    dynamics_names,
-    friction_names,
-    without_absent_directions,
-)
+from ..identify.solve import ColumnSplitJacobian, LMSettings, solve_least_squares
+from ..identify.step_names import dynamics_names, friction_names, without_absent_directions
+from ..identify.steps import JOINT_GN_TOL
 from ..model.actuator import Actuator
 from ..significance import Significance
 from ..stepping import StepPlan
@@ -364,10 +360,10 @@ class Problem:
 
         res = program.residuals if basis is None else ProjectedResiduals(
             program.residuals, jnp.asarray(basis))
-        out = solve_least_squares(res, jnp.asarray(theta0, dtype=float),
-                                  max_steps=max_steps, label=label, gn_tol=JOINT_GN_TOL,
-                                  initial_damping=initial_damping, echo=None,
-                                  jacobian=jacobian, value=value)
+        settings = LMSettings(max_steps=max_steps, gn_tol=JOINT_GN_TOL,
+                              initial_damping=initial_damping)
+        out = solve_least_squares(res, jnp.asarray(theta0, dtype=float), settings,
+                                  label=label, echo=None, jacobian=jacobian, value=value)
         self.budget.charge(solve_work(self.samples, np.size(out.theta), out,
                                       program.factor))
         fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)

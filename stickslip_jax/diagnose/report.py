@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import atomic_write_text, check_output_path
-from ..identify.residuals import _psd
+from ..identify.residuals import periodogram_psd
 from ..plots import subplots
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
@@ -64,8 +64,14 @@ def _finite(x):
     return x if np.isfinite(x) else None
 
 
+def _percent(fraction):
+    """An NRMSE [-] as the percentage every output reports (``*nrmse_percent`` keys)."""
+    x = _finite(fraction)
+    return None if x is None else 100.0 * x
+
+
 def _per_recording(nrmse, analyses, numerical=None) -> list[dict]:
-    rows = [{"recording": a.recording, "regime": a.regime, "nrmse": float(n),
+    rows = [{"recording": a.recording, "regime": a.regime, "nrmse_percent": _percent(n),
              "chi2_per_sample": a.chi2, "noise_nm": a.noise_m * 1e9,
              "rms_residual_nm": a.rms_residual_m * 1e9}
             for a, n in zip(analyses, nrmse, strict=True)]
@@ -112,8 +118,9 @@ def diagnosis_dict(d: Diagnosis) -> dict:
     """The content of ``diagnosis.json``."""
     missing = [{"name": c.name, "partial": c.partial, "summary": named_line(c),
                 "evidence": _evidence(c),
-                "params": c.params, "nrmse_before": c.nrmse_before,
-                "nrmse_after": c.nrmse_after, "criterion_delta": c.criterion_delta}
+                "params": c.params, "nrmse_before_percent": _percent(c.nrmse_before),
+                "nrmse_after_percent": _percent(c.nrmse_after),
+                "criterion_delta": c.criterion_delta}
                for c in d.accepted]
     rounds = [[{"name": c.name, "score_statistic": c.score, "probe": c.probe,
                 "sizing_drop": c.size_drop, "sizing_converged": c.size_converged,
@@ -135,17 +142,18 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "held_out_cost_by_regime": c.held_out,
                 "predicts_regimes_left_out": c.predicts, "material": c.material,
                 "implausible": c.implausible,
-                "nrmse_after": _finite(c.nrmse_after), "accepted": c.accepted,
+                "nrmse_after_percent": _percent(c.nrmse_after), "accepted": c.accepted,
                 "partial": c.partial,
                 "note": c.note, "wall_s": c.wall_s} for c in rnd] for rnd in d.rounds]
     out = {
-        "baseline": {"nrmse": float(d.nrmse_baseline.mean()),
+        "baseline": {"nrmse_percent": _percent(d.nrmse_baseline.mean()),
                      "chi2_per_sample": d.chi2_baseline,
                      "per_recording": _per_recording(d.nrmse_baseline, d.analyses_baseline)},
         "mismatch": d.mismatch,
         "residual_peaks_Hz": d.peaks_Hz,
         "missing_physics": missing,
-        "final": {"nrmse": float(d.nrmse_final.mean()), "chi2_per_sample": d.chi2_final,
+        "final": {"nrmse_percent": _percent(d.nrmse_final.mean()),
+                  "chi2_per_sample": d.chi2_final,
                   "terms": d.terms,
                   "per_recording": _per_recording(d.nrmse_final, d.analyses_final,
                                                   d.numerical_error_m)},
@@ -204,8 +212,8 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
     """``report.md``: verdict, what was named, tables, figures."""
     lines = ["# Diagnosis", "", f"**Verdict: {content['verdict']}**", ""]
     b, f = content["baseline"], content["final"]
-    lines += [f"Baseline NRMSE {100 * b['nrmse']:.4f} % (mean (e/σ)² "
-              f"{b['chi2_per_sample']:.3f}); final {100 * f['nrmse']:.4f} % "
+    lines += [f"Baseline NRMSE {b['nrmse_percent']:.4f} % (mean (e/σ)² "
+              f"{b['chi2_per_sample']:.3f}); final {f['nrmse_percent']:.4f} % "
               f"({f['chi2_per_sample']:.3f}). Model terms: {', '.join(f['terms'])}.", ""]
     sig = content.get("significance") or {}
     if sig:
@@ -224,8 +232,8 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
             removed = m["evidence"].get("removed_nm")
             removed = "" if removed is None else f"{removed:.3g}"
             name = m["name"] + (" (partial)" if m.get("partial") else "")
-            lines.append(f"| {name} | {100 * m['nrmse_before']:.4f} % | "
-                         f"{100 * m['nrmse_after']:.4f} % | {removed} | "
+            lines.append(f"| {name} | {m['nrmse_before_percent']:.4f} % | "
+                         f"{m['nrmse_after_percent']:.4f} % | {removed} | "
                          f"{m['criterion_delta']:.1f} | {params} |")
             ind = m["evidence"]["indistinguishable_from"]
             if ind:
@@ -295,20 +303,25 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
 
 
 def plot_residual_map(d: Diagnosis, path):
-    """Mean (e/σ)² per recording, baseline and final, grouped by regime."""
+    """Mean (e/σ)² per recording [-] (the residual's power over the noise's), baseline
+    and final, grouped by regime, on a log axis with the noise level (1) marked."""
     names = [a.recording for a in d.analyses_baseline]
     x = np.arange(len(names))
-    fig, ax = subplots(figsize=(max(6, 0.45 * len(names)), 3.8))
-    ax.bar(x - 0.2, [a.chi2 for a in d.analyses_baseline], 0.4, label="baseline")
-    ax.bar(x + 0.2, [a.chi2 for a in d.analyses_final], 0.4, label="final")
-    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level")
+    fig, ax = subplots(figsize=(max(6, 0.45 * len(names)), 4.2))
+    base = [a.chi2 for a in d.analyses_baseline]
+    ax.bar(x - 0.2, base, 0.4, label="baseline model")
+    ax.bar(x + 0.2, [a.chi2 for a in d.analyses_final], 0.4, label="final model")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level: (e/σ)² = 1")
     ax.set_yscale("log")
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi * (hi / lo) ** 0.35)  # head room for the legend above the bars
     ax.set_xticks(x, [f"{n}\n{a.regime}" for n, a in zip(names, d.analyses_baseline,
                                                           strict=True)],
                   rotation=90, fontsize=7)
-    ax.set_ylabel("mean (residual/σ)²")
-    ax.set_title(f"Residual by recording and regime — {d.verdict}")
-    ax.legend(fontsize=8)
+    ax.set_xlabel("recording (regime)")
+    ax.set_ylabel("mean (residual/σ)² [-]")
+    ax.set_title(f"Residual by recording and regime — {d.verdict}", fontsize=10)
+    ax.legend(fontsize=8, loc="upper left", ncol=3, framealpha=0.85)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
@@ -319,9 +332,11 @@ def _worst(d: Diagnosis, n: int) -> np.ndarray:
 
 
 def plot_overlays(d: Diagnosis, path, n: int = 4):
-    """Measured vs baseline vs final, and both residuals, for the worst recordings."""
+    """Measured vs baseline vs final output q [µm] (top), and both residuals [nm] with
+    the ±1σ noise band (bottom), for the worst recordings; every panel labelled, a
+    legend in each row."""
     order = _worst(d, n)
-    fig, axes = subplots(2, len(order), figsize=(3.6 * len(order), 5.2), squeeze=False)
+    fig, axes = subplots(2, len(order), figsize=(3.8 * len(order), 5.8), squeeze=False)
     for j, i in enumerate(order):
         rec = d.data.recordings[i]
         t = rec.time_s * 1e3
@@ -330,38 +345,52 @@ def plot_overlays(d: Diagnosis, path, n: int = 4):
         q = rec.position_m
         # Measured beneath (wide, light) so that the models drawn on it stay visible.
         axes[0, j].plot(t, q * 1e6, color="0.55", lw=2.6, alpha=0.8, label="measured")
-        axes[0, j].plot(t, (q - e0) * 1e6, color="tab:red", lw=0.8, label="baseline")
+        axes[0, j].plot(t, (q - e0) * 1e6, color="tab:red", lw=0.8, label="baseline model")
         axes[0, j].plot(t, (q - e1) * 1e6, color="tab:blue", lw=0.8, ls=(0, (4, 2)),
-                        label="final")
+                        label="final model")
         axes[0, j].set_title(rec.name, fontsize=8)
+        axes[0, j].set_xlabel("t [ms]", fontsize=8)
+        axes[0, j].set_ylabel("q [µm]", fontsize=8)
         sigma_nm = float(d.sigmas[i]) * 1e9
         axes[1, j].axhspan(-sigma_nm, sigma_nm, color="tab:orange", alpha=0.3, lw=0,
                            label=f"±1σ noise ({sigma_nm:.3g} nm)")
         axes[1, j].plot(t, e0 * 1e9, color="tab:red", lw=0.6, label="baseline")
         axes[1, j].plot(t, e1 * 1e9, color="tab:blue", lw=0.6, label="final")
-        axes[1, j].set_xlabel("t [ms]")
-        axes[1, j].legend(fontsize=6, loc="upper right")
-    axes[0, 0].set_ylabel("q [µm]")
-    axes[1, 0].set_ylabel("measured − model [nm]")
-    axes[0, 0].legend(fontsize=7)
+        lo, hi = axes[1, j].get_ylim()
+        axes[1, j].set_ylim(lo, hi + 0.45 * (hi - lo))  # head room for the legend
+        axes[1, j].set_xlabel("t [ms]", fontsize=8)
+        axes[1, j].set_ylabel("measured − model [nm]", fontsize=8)
+        axes[1, j].legend(fontsize=6, loc="upper right", framealpha=0.85)
+        for ax in axes[:, j]:
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7, loc="best", framealpha=0.85)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
 
 def plot_residual_psd(d: Diagnosis, path, n: int = 4):
-    """Residual PSD over the noise level, baseline and final, worst recordings."""
+    """Residual PSD over the noise's (white noise of each recording's σ: σ²·dt in
+    :func:`~stickslip_jax.identify.residuals.periodogram_psd`'s normalisation), baseline (solid)
+    and final (dotted) in one colour per recording, worst recordings."""
+    from ..plots import colormap
+
     order = _worst(d, n)
-    fig, ax = subplots(figsize=(6.5, 4))
-    for i in order:
+    fig, ax = subplots(figsize=(7.5, 4.4))
+    colours = colormap("tab10")(np.arange(len(order)) % 10)
+    for colour, i in zip(colours, order, strict=True):
         rec = d.data.recordings[i]
         level = d.sigmas[i] ** 2 * rec.dt
-        for q, ls in ((d.q_baseline[i], "-"), (d.q_final[i], ":")):
-            f, p = _psd(residual_of(rec, q), rec.dt, np)
-            ax.loglog(f[1:], p[1:] / level, ls, lw=0.7,
-                      label=f"{rec.name} ({'baseline' if ls == '-' else 'final'})")
-    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        for q, ls, what in ((d.q_baseline[i], "-", "baseline"), (d.q_final[i], ":", "final")):
+            f, p = periodogram_psd(residual_of(rec, q), rec.dt, np)
+            ax.loglog(f[1:], p[1:] / level, ls=ls, lw=0.9 if ls == ":" else 0.7,
+                      color=colour, label=f"{rec.name} ({what})")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="noise level (white, σ of each "
+                                                       "recording)")
     ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("residual PSD / noise level")
-    ax.legend(fontsize=6)
+    ax.set_ylabel("residual PSD / noise PSD [-]")
+    ax.set_title(f"Residual spectrum, {len(order)} worst recordings: baseline (solid), "
+                 f"final (dotted)", fontsize=10)
+    ax.grid(True, which="major", alpha=0.25)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

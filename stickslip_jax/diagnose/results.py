@@ -165,6 +165,8 @@ class Diagnosis:
     final: Actuator
     nrmse_baseline: np.ndarray
     nrmse_final: np.ndarray
+    """Per recording NRMSE before and after, fractions [-] (``diagnosis.json``:
+    ``nrmse_percent``)."""
     chi2_baseline: float
     chi2_final: float
     analyses_baseline: list[RecordingResidual]

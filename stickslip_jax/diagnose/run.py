@@ -210,13 +210,14 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
                      polish.residual, polish.jacobian, at_act)
 
 
-def _locate(problem: Problem, q0: np.ndarray):
+def _locate(problem: Problem, q0: np.ndarray, policy: Policy):
     """Phase 2: each recording's residual analysis, the flagged ones, and the hints
     the probes use (shared residual peaks, the largest voltage slew)."""
     data, sigmas = problem.data, problem.sigmas
     analyses = [analyse_recording(r, q0[i], sigmas[i]) for i, r in enumerate(data.recordings)]
     mismatch = mismatch_entries(analyses)
-    hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas),
+    hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas,
+                                        noise_z=policy.significance_z),
              "max_slew_V_s": max(float(np.max(np.abs(np.diff(r.voltage_V)))) / r.dt
                                  for r in data.recordings),
              "sample_interval_s": min(float(r.dt) for r in data.recordings)}
@@ -528,7 +529,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         f"the baseline is {'within' if baseline_adequate else 'beyond'} it")
 
     # 2. Locate.
-    analyses0, mismatch, hints = _locate(problem, base.q)
+    analyses0, mismatch, hints = _locate(problem, base.q, policy)
     say(f"[baseline] NRMSE {100 * base.nrmse.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
         f"{len(mismatch)} recording(s) flagged; residual peaks "
         f"{', '.join(f'{f:.0f} Hz' for f in hints['peaks_Hz']) or 'none'}")

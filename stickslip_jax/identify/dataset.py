@@ -16,6 +16,7 @@ import numpy as np
 
 from ..io import Recording
 from ..model.base import DriveContext
+from ..regime import drive_steps
 from ..simulate import drive_context, pad_voltages, stack_drives
 
 
@@ -69,9 +70,9 @@ def mean_step_length(rec, q) -> float:
 def classify_regime(rec, q=None) -> str:
     """``step``, ``sine``, ``scanning``, ``stepping_forward``/``stepping_backward``.
 
-    A sawtooth drive steps when the phase-locked mean step per period exceeds a tenth
-    of the output's peak-to-peak within a period; otherwise the slider follows the
-    piezo back and forth (scanning).
+    A sawtooth drive steps or scans by :func:`stickslip_jax.regime.drive_steps`: its
+    phase-locked mean step per period against the median peak-to-peak output within a
+    period.
     """
     drive = rec.drive
     if drive.waveform != "sawtooth":
@@ -80,7 +81,7 @@ def classify_regime(rec, q=None) -> str:
     step = abs(mean_step_length(rec, q))
     per = max(int(round(rec.sample_rate_Hz / drive.frequency_Hz)), 2)
     swing = float(np.median([np.ptp(q[i:i + per]) for i in range(0, len(q) - per + 1, per)]))
-    if not np.isfinite(step) or step <= 0.1 * swing:
+    if not np.isfinite(step) or not drive_steps(step, swing):
         return "scanning"
     return "stepping_backward" if drive.is_backward else "stepping_forward"
 

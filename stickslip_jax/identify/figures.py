@@ -13,7 +13,7 @@ import numpy as np
 from ..plots import colormap, legend_on_labelled, save_figure, subplots
 from .dataset import mean_step_length
 from .initial import stroke_along
-from .residuals import _psd
+from .residuals import periodogram_psd
 
 
 def _finish(fig, path):
@@ -29,7 +29,9 @@ def display_psd(x, dt: float, *, band=(20.0, 12_500.0), period_samples: float | 
     segments of a whole number of periods, about half the trace each, linear trend of
     each removed), so that the harmonics fall on bins. A transient (a step response)
     gets one Hann periodogram of the whole trace, as the identification's spectral
-    term does (segments would cut the transient and the window would hide it).
+    term does (segments would cut the transient and the window would hide it), made
+    one-sided like Welch's (twice :func:`~.residuals.periodogram_psd`'s level), so that white
+    noise of std σ sits at ``2σ²·dt`` in both.
     Then the mean over bands of 1/``per_octave`` octave within ``band`` [Hz]: a
     periodic drive's comb of harmonics fills the upper decades of a log-frequency axis
     solid, and its band means show the envelope instead (power per band over the band
@@ -45,7 +47,8 @@ def display_psd(x, dt: float, *, band=(20.0, 12_500.0), period_samples: float | 
         f, psd = welch(x, fs=1.0 / dt, window="hann", nperseg=seg, noverlap=seg // 2,
                        detrend="linear")
     else:
-        f, psd = _psd(x, dt, np)
+        f, psd = periodogram_psd(x, dt, np)
+        psd = 2.0 * psd  # one-sided, as Welch's (DC and Nyquist lie outside any band)
     n_bands = int(np.ceil(per_octave * np.log2(band[1] / band[0])))
     edges = np.geomspace(band[0], band[1], n_bands + 1)
     centres, levels = [], []
@@ -58,22 +61,34 @@ def display_psd(x, dt: float, *, band=(20.0, 12_500.0), period_samples: float | 
 
 
 def plot_psd_overlay(recs, q_sims, *, title: str, path: str | Path | None = None,
-                     band=(20.0, 12_500.0)):
-    """Measured vs simulated PSD [m²/Hz] of each recording, one panel per recording
-    (:func:`display_psd`: Welch average for periodic drives, 1/12-octave bands)."""
-    fig, axes = subplots(1, len(recs), figsize=(5.2 * len(recs), 3.6), squeeze=False)
-    for ax, rec, q in zip(axes[0], recs, q_sims, strict=True):
+                     band=(20.0, 12_500.0), noise_m=None):
+    """Measured vs simulated one-sided PSD [m²/Hz] of each recording, one panel per
+    recording (:func:`display_psd`: Welch average for periodic drives, 1/12-octave
+    bands), with each recording's sensor-noise floor: white noise of std σ sampled at
+    fs has the one-sided level 2σ²/fs. ``noise_m``: σ [m] per recording; None
+    estimates it from each recording (:func:`stickslip_jax.noise.noise_sigma`). Below
+    the floor the measured PSD is noise, and the simulated one (noise-free) may go on
+    falling there without any disagreement."""
+    from ..noise import noise_sigma
+
+    if noise_m is None:
+        noise_m = [noise_sigma(r) for r in recs]
+    fig, axes = subplots(1, len(recs), figsize=(5.4 * len(recs), 3.8), squeeze=False)
+    for ax, rec, q, sigma in zip(axes[0], recs, q_sims, noise_m, strict=True):
         f0 = rec.drive.frequency_Hz if rec.drive.waveform in ("sawtooth", "sine") else None
         per = rec.sample_rate_Hz / f0 if f0 else None
         f, p_m = display_psd(rec.position_m, rec.dt, band=band, period_samples=per)
         _, p_s = display_psd(np.asarray(q), rec.dt, band=band, period_samples=per)
         ax.loglog(f, p_m, color="0.55", lw=2.6, alpha=0.8, label="measured")
         ax.loglog(f, p_s, color="tab:blue", lw=0.9, ls=(0, (4, 2)), label="simulated")
+        if sigma is not None and np.isfinite(sigma) and sigma > 0:
+            ax.axhline(2.0 * float(sigma) ** 2 * rec.dt, color="tab:red", lw=0.9, ls=":",
+                       label=f"noise floor 2σ²/fs (σ = {float(sigma) * 1e9:.3g} nm)")
         ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel("one-sided PSD of q [m²/Hz]")
         ax.set_title(rec.name, fontsize=9)
         ax.grid(True, which="both", alpha=0.25)
-    axes[0][0].set_ylabel("PSD of q [m²/Hz]")
-    axes[0][0].legend(fontsize=8)
+        ax.legend(fontsize=7, loc="best", framealpha=0.85)
     how = "Welch average, " if any(r.drive.waveform in ("sawtooth", "sine") for r in recs) else ""
     fig.suptitle(f"{title}; {how}mean over 1/12-octave bands", fontsize=10)
     fig.tight_layout()
@@ -82,22 +97,71 @@ def plot_psd_overlay(recs, q_sims, *, title: str, path: str | Path | None = None
 
 def plot_hysteresis_loop(actuator, rec, q_sim, *, path: str | Path | None = None):
     """Hysteresis of a slow drive: measured and simulated q/2 against U, with the
-    model's free stroke Γ(U) (in stick, q = 2·Γ)."""
+    model's free stroke Γ(U) (in stick, q = 2·Γ).
+
+    While the slider sticks it moves with the piezo, so q = x1 + x2 = 2·x1, and at a
+    slow drive x1 follows Γ: q/2 is the measured hysteresis output. Γ(U) is the
+    rate-independent Prandtl-Ishlinskii stroke, but the piezo (Mp, Dp, Kp, carrying
+    the slider) lags it, so the measured loop against U is wider than Γ's. To compare
+    like with like the figure also draws Γ through the model's stick dynamics at the
+    drive frequency (:func:`stickslip_jax.linear.frequency_response`: gain |H|/2 and
+    time lag τ = −arg H/ω), Γ(t − τ)·|H|/2, and says how wide each loop is."""
     u = np.asarray(rec.voltage_V)
     gamma = stroke_along(actuator, u)
-    fig, ax = subplots(figsize=(5.2, 4.2))
+    fig, ax = subplots(figsize=(6.4, 5.2))
     half_m = np.asarray(rec.position_m) / 2
     half_s = np.asarray(q_sim) / 2
     shift = np.mean(half_s - half_m)  # the interferometer zero is arbitrary
-    ax.plot(u, (half_m + shift) * 1e6, color="0.55", lw=2.6, alpha=0.8, label="measured q/2")
+    ax.plot(u, (half_m + shift) * 1e6, color="0.55", lw=2.6, alpha=0.8,
+            label="measured q/2 (q = 2Γ while the slider sticks)")
     ax.plot(u, half_s * 1e6, color="tab:blue", lw=0.9, ls=(0, (4, 2)), label="simulated q/2")
-    ax.plot(u, gamma * 1e6, color="tab:orange", lw=0.9, label="model Γ(U) (PI)")
+    ax.plot(u, gamma * 1e6, color="tab:orange", lw=0.9,
+            label="model Γ(U): PI stroke, rate-independent")
+    f0 = rec.drive.frequency_Hz if rec.drive.waveform in ("sine", "sawtooth") else None
+    note = ("Γ(U) has no dynamics; the measured q/2 also carries\nthe piezo's lag behind "
+            "Γ, which widens its loop")
+    if f0:
+        from ..linear import frequency_response
+
+        h = complex(np.asarray(frequency_response(actuator, float(f0))))
+        tau = -np.angle(h) / (2 * np.pi * f0)
+        t = np.asarray(rec.time_s)
+        lagged = np.interp(t - tau, t, gamma) * abs(h) / 2
+        ax.plot(u, lagged * 1e6, color="k", lw=0.8, ls=":",
+                label=f"Γ through the stick dynamics: Γ(t − τ)·|H|/2, τ = {tau * 1e6:.3g} µs")
+        widths = [_loop_width(u, y) for y in (half_m, gamma, lagged)]
+        if all(np.isfinite(widths)):
+            note = (f"Γ(U) has no dynamics: at {f0:g} Hz the piezo lags it by "
+                    f"τ = {tau * 1e6:.3g} µs ({np.degrees(-np.angle(h)):.2g}°),\nwhich "
+                    f"widens the loop: width at mid-voltage {widths[0] * 1e9:.3g} nm "
+                    f"measured,\n{widths[1] * 1e9:.3g} nm Γ(U), {widths[2] * 1e9:.3g} nm "
+                    f"Γ through the stick dynamics")
+    ax.text(0.98, 0.02, note, transform=ax.transAxes, ha="right", va="bottom", fontsize=7,
+            bbox=dict(boxstyle="round", fc="w", ec="0.7", alpha=0.9))
     ax.set_xlabel("U [V]")
-    ax.set_ylabel("displacement [µm]")
+    ax.set_ylabel("q/2 (the hysteresis output) and free stroke Γ [µm]")
     ax.set_title(f"hysteresis loop: {rec.name}", fontsize=10)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7, loc="upper left", framealpha=0.85)
     ax.grid(alpha=0.25)
     return _finish(fig, path)
+
+
+def _loop_width(u, y) -> float:
+    """Vertical opening of the last full loop of ``y`` against ``u`` at mid-voltage
+    [units of y] (falling branch minus rising branch, over the last third of the
+    trace), NaN where the trace does not pass mid-voltage both ways there."""
+    n = len(u)
+    uu, yy = np.asarray(u)[2 * n // 3:], np.asarray(y)[2 * n // 3:]
+    mid = 0.5 * (np.min(u) + np.max(u))
+    du = np.gradient(uu)
+    out = []
+    for branch in (du > 0, du < 0):
+        ub, yb = uu[branch], yy[branch]
+        if ub.size < 2 or not ub.min() <= mid <= ub.max():
+            return float("nan")
+        order = np.argsort(ub)
+        out.append(np.interp(mid, ub[order], yb[order]))
+    return float(out[1] - out[0])
 
 
 def plot_step_lengths(recs, q_sims, *, path: str | Path | None = None):

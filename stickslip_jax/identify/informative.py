@@ -33,6 +33,7 @@ from ..model.hysteresis import default_thresholds
 from ..noise import noise_sigma, sigma_from_differences
 from .dataset import period_ends, step_lengths
 from .parameters import law_fittable
+from .step_names import dynamics_names, friction_names
 
 RING_PERIODS = 3.0
 """Periods of the first resonance a step response must hold after its edge [-]: a
@@ -346,7 +347,6 @@ def assess(recordings: Sequence[Recording], actuator: Actuator, *,
     (``friction``, ``joint``) a sawtooth of that direction that steps; the law's other
     friction-step parameters any stepping sawtooth.
     """
-    from .steps import dynamics_names, friction_names  # steps imports this module
 
     steps = tuple(steps)
     recordings = [r for r in recordings if r.position_m is not None]

@@ -90,7 +90,9 @@ def _law_parameter(name: str, actuator: Actuator) -> LawParameter | None:
     return next((p for p in law_fittable(actuator) if p.name == name), None)
 
 
-def _getter(name: str, actuator: Actuator) -> Callable[[Actuator], jax.Array]:
+def parameter_getter(name: str, actuator: Actuator) -> Callable[[Actuator], jax.Array]:
+    """The leaf of ``actuator`` that parameter ``name`` (a file name: ``Mp``,
+    ``z_ba_forward``, ``pi_weights``) is stored in, as a function for ``eqx.tree_at``."""
     if name in _COMMON:
         return _COMMON[name][0]
     p = _law_parameter(name, actuator)
@@ -262,7 +264,7 @@ class ParameterMap(eqx.Module):
         free, getters = [], []
         for name in names:
             spec = specs.get(name)
-            getter = spec.getter if spec else _getter(name, start)
+            getter = spec.getter if spec else parameter_getter(name, start)
             getters.append(getter)
             value = np.asarray(getter(start), dtype=float)
             kind, scale = (spec.kind, spec.scale) if spec else _kind(name, start)

@@ -53,6 +53,13 @@ def fit_status(result) -> str:
     return "misspecified" if getattr(result, "misspecified", False) else "converged"
 
 
+def _percent(fraction) -> float | None:
+    """An NRMSE [-] as the percentage every output file and console line reports
+    (keys carry the unit: ``*_nrmse_percent``); None where it is not finite."""
+    value = float(fraction)
+    return 100.0 * value if np.isfinite(value) else None
+
+
 def fit_summary(result) -> dict:
     """The content of ``fit.json`` (plain JSON types only)."""
     data = result.data
@@ -67,10 +74,10 @@ def fit_summary(result) -> dict:
         floors.append(sigma / data.scale[b])
         recs[rec.name] = {
             "regime": classify_regime(rec),
-            "nrmse": float(result.nrmse[b]),
+            "nrmse_percent": _percent(result.nrmse[b]),
             "rms_residual_nm": float(np.sqrt(np.mean(diff**2)) * 1e9),
             "noise_floor_nm": sigma * 1e9,
-            "noise_floor_nrmse": float(sigma / data.scale[b]),
+            "noise_floor_nrmse_percent": _percent(sigma / data.scale[b]),
             # The simulator's own error at the fit (step doubling), next to the noise.
             "numerical_error_nm": (None if numerical is None
                                    else float(numerical[b]) * 1e9),
@@ -107,8 +114,8 @@ def fit_summary(result) -> dict:
         "free": list(s.free), "recordings": list(s.recordings),
         # Coarse sub-steps per sample of each stretch (more than one: re-planned).
         "substeps": [seg.plan.substeps for seg in s.segments],
-        "nrmse_before": None if not np.isfinite(s.nrmse_before) else float(s.nrmse_before),
-        "nrmse_after": None if not np.isfinite(s.nrmse_after) else float(s.nrmse_after),
+        "nrmse_before_percent": _percent(s.nrmse_before),
+        "nrmse_after_percent": _percent(s.nrmse_after),
     } for s in result.steps]
     nrmse = float(np.mean(result.nrmse))
     floor = float(np.mean(floors))
@@ -118,7 +125,8 @@ def fit_summary(result) -> dict:
         "misspecified": bool(check is not None and check.misspecified),
         "model_check": check.as_dict() if check is not None else None,
         "regime_spread": spread.as_dict() if spread is not None else None,
-        "overall": {"nrmse": nrmse, "noise_floor_nrmse": floor,
+        "overall": {"nrmse_percent": _percent(nrmse),
+                    "noise_floor_nrmse_percent": _percent(floor),
                     "nrmse_over_floor": nrmse / floor if floor > 0 else None,
                     "numerical_floor_nm": (None if numerical is None
                                            else float(np.max(numerical)) * 1e9),

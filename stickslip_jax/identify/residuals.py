@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..noise import noise_sigma
-from ..simulate import _model_output, checked_batching, over_rows, plan_steps
+from ..simulate import checked_batching, model_output, over_rows, plan_steps
 from ..stepping import Stepping, StepPlan
 from .dataset import Dataset
 from .parameters import ParameterMap
@@ -85,7 +85,7 @@ def simulate_dataset(actuator, data: Dataset, *, plan: StepPlan | None = None,
     plan = dataset_plan(actuator, data) if plan is None else plan
 
     def one(u, dt, drive):
-        q = _model_output(actuator, u, dt, drive, plan)
+        q = model_output(actuator, u, dt, drive, plan)
         return actuator.output_map(dt * jnp.arange(u.shape[0]), q)
 
     total = data.voltages.shape[1]
@@ -128,7 +128,7 @@ def recording_noise(data: Dataset) -> tuple[float, ...]:
     return tuple(float(s) for s in np.maximum(sigma, 1e-6 * top))
 
 
-def _psd(x, dt, xp):
+def periodogram_psd(x, dt, xp):
     """Periodogram PSD [m²/Hz] (Hann window, normalised so that white noise of
     variance σ² has the level σ²·dt) at the rfft frequencies [Hz], after removing the
     line through the ends, so the ends meet and the window does not leak a jump."""
@@ -148,7 +148,7 @@ def log_psd(x, dt, *, band=(50.0, 5000.0), xp=jnp):
     Returns ``(frequencies [Hz], log10 PSD [m²/Hz])`` for the bins inside ``band``.
     ``xp`` is ``jax.numpy`` (traceable) or ``numpy`` (for measured data).
     """
-    f, psd = _psd(x, dt, xp)
+    f, psd = periodogram_psd(x, dt, xp)
     keep = np.flatnonzero((f >= band[0]) & (f <= band[1]))
     return f[keep], xp.log10(psd[..., keep] + 1e-40)
 
@@ -174,7 +174,7 @@ def band_matrix(n: int, dt: float, *, band=(50.0, 5000.0), n_bands: int = 30):
 def band_log_psd(x, dt, bands, *, floor=0.0, xp=jnp):
     """log10 of the band-averaged PSD [m²/Hz] (``bands`` from :func:`band_matrix`) plus
     ``floor`` [m²/Hz], the measurement noise added to a noiseless simulation."""
-    _, psd = _psd(x, dt, xp)
+    _, psd = periodogram_psd(x, dt, xp)
     return xp.log10(xp.asarray(bands) @ psd + floor + 1e-40)
 
 
@@ -183,7 +183,7 @@ def noise_floor_psd(x, dt) -> float:
     half-band (above Nyquist/2), where the actuator's response has died out. (The
     mean, not the median: periodogram bins are exponentially distributed, and their
     median is ln 2 ≈ 0.69 of the level.)"""
-    f, psd = _psd(x, dt, np)
+    f, psd = periodogram_psd(x, dt, np)
     return float(np.mean(psd[f >= 0.25 / dt]))
 
 
@@ -363,7 +363,7 @@ class TraceResiduals(eqx.Module):
 
 
 def psd_and_tangents(x, dx, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_psd`'s periodogram of ``x`` (n,) [m²/Hz] and its derivatives along the
+    """:func:`periodogram_psd`'s periodogram of ``x`` (n,) [m²/Hz] and its derivatives along the
     rows of ``dx`` (k, n) [m²/Hz per unit of the tangent] (numpy): the detrending and
     the window are linear, so d|X|² = 2·Re(X̄·dX)·dt/Σwin² with X, dX the windowed
     spectra [m·s]."""

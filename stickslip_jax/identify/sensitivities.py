@@ -43,8 +43,8 @@ import numpy as np
 from ..simulate import rest_carry
 from ..stepping import StepPlan, sample_stepper
 from .dataset import Dataset
-from .parameters import ParameterSpec, _getter
-from .solve import _pool, jacobian_threads
+from .parameters import ParameterSpec, parameter_getter
+from .solve import jacobian_pool, jacobian_threads
 
 CHUNK = 128
 """Samples per chunk of the per-recording loop [-]. A chunk that starts after the
@@ -124,7 +124,7 @@ def perturbed_mask(actuator, names: Sequence[str],
     specs = specs or {}
     mask = jax.tree.map(lambda _: False, actuator)
     for name in names:
-        getter = specs[name].getter if name in specs else _getter(name, actuator)
+        getter = specs[name].getter if name in specs else parameter_getter(name, actuator)
         mask = eqx.tree_at(getter, mask, True)
     return mask
 
@@ -177,7 +177,7 @@ class RecordingPrograms:
         if self.threads == 1 or len(tasks) <= 1:
             out.update({t: jax.block_until_ready(call(t)) for t in tasks})
             return out
-        pool = _pool(self.threads)
+        pool = jacobian_pool(self.threads)
         futures = {t: pool.submit(lambda t=t: jax.block_until_ready(call(t))) for t in tasks}
         out.update({t: f.result() for t, f in futures.items()})
         return out

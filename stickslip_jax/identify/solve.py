@@ -18,6 +18,8 @@ compile, four per identification, issue #28), for work of a few milliseconds.
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import os
 import time
 from collections.abc import Callable
@@ -32,12 +34,31 @@ from scipy.linalg import solve_triangular
 from ..adjoint import value_and_jacfwd
 
 
+class SolveStatus(enum.Enum):
+    """How a solve ended (:attr:`SolveResult.status`); callers branch on it, the
+    message is for people."""
+
+    CONVERGED = "converged"
+    """A convergence test passed (a stall within one standard error of the
+    Gauss-Newton point included: the cost is rough there at the simulator's
+    resolution)."""
+    STEP_CAP = "step cap"
+    """``max_steps`` steps taken without converging."""
+    STALLED = "stalled"
+    """No step lowers the cost, farther than a standard error from the optimum."""
+    NON_FINITE = "non-finite"
+    """The parameters or the cost left the finite numbers."""
+    INTERRUPTED = "interrupted"
+    """``stop_when`` ended it (:attr:`SolveResult.interrupted` says why)."""
+
+
 @dataclass(frozen=True)
 class SolveResult:
     """Outcome of one solve.
 
-    ``theta`` the solution in fitted coordinates; ``converged`` True only when
-    optimistix reports success; ``message`` its verdict in words; ``iterations`` the
+    ``theta`` the solution in fitted coordinates; ``status`` how it ended
+    (:class:`SolveStatus`; ``converged`` is ``status is CONVERGED``); ``message`` the
+    verdict in words; ``iterations`` the
     number of LM steps; ``wall_s`` [s] including compilation; ``cost_start`` and
     ``cost_end`` the sum of squared residuals at the start and the end;
     ``residual_start`` and ``residual`` the residual vectors there; ``jacobian`` the
@@ -50,7 +71,7 @@ class SolveResult:
     """
 
     theta: np.ndarray
-    converged: bool
+    status: SolveStatus
     message: str
     iterations: int
     wall_s: float
@@ -63,6 +84,11 @@ class SolveResult:
     values: int = 0
     damping: float = float("nan")
     interrupted: str = ""
+
+    @property
+    def converged(self) -> bool:
+        """Whether a convergence test passed."""
+        return self.status is SolveStatus.CONVERGED
 
 
 def jacobian_threads() -> int:
@@ -87,7 +113,9 @@ def jacobian_threads() -> int:
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 
 
-def _pool(threads: int) -> ThreadPoolExecutor:
+def jacobian_pool(threads: int) -> ThreadPoolExecutor:
+    """The process's thread pool of ``threads`` workers for Jacobian columns (made once
+    per size, kept: threads that compiled a program keep its caches warm)."""
     if threads not in _POOLS:
         _POOLS[threads] = ThreadPoolExecutor(max_workers=threads,
                                              thread_name_prefix="stickslip-jacobian")
@@ -127,7 +155,7 @@ class ColumnSplitJacobian:
         bases, share = self._programs[key]
         if len(bases) == 1:
             return share(theta, args, bases[0])
-        futures = [_pool(len(bases)).submit(
+        futures = [jacobian_pool(len(bases)).submit(
             lambda b=b: jax.block_until_ready(share(theta, args, b))) for b in bases]
         parts = [f.result() for f in futures]
         return parts[0][0], jnp.concatenate([p[1] for p in parts], axis=1)[:, :k]
@@ -293,16 +321,38 @@ then puts the cost within one noise variance σ̂² of its minimum), not converg
 otherwise."""
 
 
-def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float = 1e-4,
-                        atol: float = 1e-6, ftol: float | None = None, window: int = 5,
-                        gn_tol: float | None = None, initial_damping: float = 1.0,
-                        scale_by_jacobian: bool = True, label: str = "fit",
-                        echo: Callable[[str], None] | None = None,
-                        jacobian: Callable | None = None,
-                        value: Callable | None = None,
-                        damping_update: str = "classical",
-                        stop_when: Callable[[np.ndarray], str] | None = None) -> SolveResult:
-    """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt.
+@dataclass(frozen=True)
+class LMSettings:
+    """How one Levenberg-Marquardt solve runs and when it stops (every field is
+    explained at :func:`solve_least_squares`): ``max_steps``; the Cauchy tolerances
+    ``rtol``, ``atol``; the stationary-cost test ``ftol`` (None: 0.1/N) over ``window``
+    accepted steps; the Gauss-Newton point test ``gn_tol`` [SE²] (None: off; set, it
+    replaces the other tests); ``initial_damping``; ``scale_by_jacobian``;
+    ``damping_update`` (:attr:`LevenbergMarquardtSteps.DAMPING_UPDATES`)."""
+
+    max_steps: int = 60
+    rtol: float = 1e-4
+    atol: float = 1e-6
+    ftol: float | None = None
+    window: int = 5
+    gn_tol: float | None = None
+    initial_damping: float = 1.0
+    scale_by_jacobian: bool = True
+    damping_update: str = "classical"
+
+    def replace(self, **changes) -> LMSettings:
+        """These settings with ``changes`` (field names; TypeError on an unknown one)."""
+        return dataclasses.replace(self, **changes)
+
+
+def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *,
+                        label: str = "fit", echo: Callable[[str], None] | None = None,
+                        jacobian: Callable | None = None, value: Callable | None = None,
+                        stop_when: Callable[[np.ndarray], str] | None = None,
+                        **changes) -> SolveResult:
+    """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt, run as
+    ``settings`` (:class:`LMSettings`; default ``LMSettings()``) with ``changes`` to
+    its fields given as keywords (``max_steps=15``).
 
     :class:`LevenbergMarquardtSteps` (optimistix's solver, in numpy) takes the steps;
     this loop drives them one at a time so that it can report progress and apply a
@@ -375,13 +425,19 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
 
     Never raises on failure: the verdict is in the result.
     """
+    settings = (settings or LMSettings()).replace(**changes)
+    max_steps, rtol, atol, ftol = (settings.max_steps, settings.rtol, settings.atol,
+                                   settings.ftol)
+    window, gn_tol, initial_damping = settings.window, settings.gn_tol, settings.initial_damping
+    scale_by_jacobian, damping_update = settings.scale_by_jacobian, settings.damping_update
     value_of, value = value, None  # (``value`` below: the residual at a point)
     theta0 = jnp.asarray(theta0, dtype=float)
     start = time.perf_counter()
     if theta0.size == 0:
         r = np.asarray(residuals(theta0))
         cost = float(np.sum(r**2))
-        return SolveResult(np.asarray(theta0), True, "converged (nothing free)", 0,
+        return SolveResult(np.asarray(theta0), SolveStatus.CONVERGED,
+                           "converged (nothing free)", 0,
                            time.perf_counter() - start, cost, cost, r, r,
                            np.zeros((r.size, 0)), jacobians=0, values=1)
 
@@ -427,7 +483,7 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     costs: list[float] = []  # cost at each accepted point, the start first
     residual_start = None
     jac_accepted = jac  # the Jacobian (in φ) at the last accepted point
-    ok, message, n = False, f"not converged: hit max_steps={max_steps}", 0
+    status, message, n = SolveStatus.STEP_CAP, f"not converged: hit max_steps={max_steps}", 0
     distance = np.inf  # the Gauss-Newton test's at the last accepted point [SE²]
     rejected_run = 0  # consecutive rejected steps
     interrupted = ""
@@ -470,18 +526,20 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
                 if echo is not None:
                     echo(f"  {label}: Gauss-Newton step {np.sqrt(distance):.3g} SE")
                 if distance <= gn_tol:
-                    ok, message = True, (f"converged (the Gauss-Newton step is "
-                                         f"{np.sqrt(distance):.2g} standard errors)")
+                    status = SolveStatus.CONVERGED
+                    message = (f"converged (the Gauss-Newton step is "
+                               f"{np.sqrt(distance):.2g} standard errors)")
                     break
         if residual_start is None:
             residual_start = lm.residual
         if echo is not None:
             echo(f"  {label}: step {n:3d}  accepted {lm.accepted - 1:3d}  cost {cost:.4e}")
         if not (np.all(np.isfinite(lm.y)) and np.isfinite(cost)):
-            ok, message = False, "failed: non-finite parameters or cost"
+            status, message = SolveStatus.NON_FINITE, "failed: non-finite parameters or cost"
             break
         if lm.terminate:
-            ok, message = True, "converged (parameter and residual changes below tolerance)"
+            status = SolveStatus.CONVERGED
+            message = "converged (parameter and residual changes below tolerance)"
             break
         if gn_tol is not None and rejected_run >= STALL_REJECTIONS:
             # The quadratic model promises a fall smaller than one noise variance, and
@@ -489,20 +547,22 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
             # rough at this scale (a simulated stick-slip event moves a sample). Within
             # a standard error that is the optimum as far as the simulator resolves it.
             ok = distance <= 1.0
+            status = SolveStatus.CONVERGED if ok else SolveStatus.STALLED
             message = (f"{'converged' if ok else 'not converged'} (stalled: no step lowers "
                        f"the cost, {STALL_REJECTIONS} rejected in a row; the Gauss-Newton "
                        f"step is {np.sqrt(distance):.2g} standard errors)")
             break
         if (gn_tol is None and len(costs) > window
                 and costs[-window - 1] - costs[-1] <= ftol * costs[-1]):
-            ok, message = True, (f"converged (cost stationary: fell by less than {ftol:.2g} "
-                                 f"of itself over {window} accepted steps)")
+            status = SolveStatus.CONVERGED
+            message = (f"converged (cost stationary: fell by less than {ftol:.2g} "
+                       f"of itself over {window} accepted steps)")
             break
         # Last: a point that converged ends the solve as converged.
         if stop_when is not None and n and accepted_now:
             interrupted = stop_when(np.asarray(theta0) + lm.y / np.asarray(d))
             if interrupted:
-                ok, message = False, f"interrupted: {interrupted}"
+                status, message = SolveStatus.INTERRUPTED, f"interrupted: {interrupted}"
                 break
     # The last accepted point, its residual, and the Jacobian evaluated with it.
     residual = lm.residual
@@ -510,6 +570,6 @@ def solve_least_squares(residuals, theta0, *, max_steps: int = 60, rtol: float =
     wall = time.perf_counter() - start
     cost_start, cost_end = (costs[0], costs[-1]) if costs else (np.nan, np.nan)
     theta = np.asarray(theta0) + lm.y / np.asarray(d)
-    return SolveResult(theta, ok, message, n, wall, cost_start, cost_end, residual_start,
+    return SolveResult(theta, status, message, n, wall, cost_start, cost_end, residual_start,
                        residual, jac, **counts, damping=1.0 / lm.step_size,
                        interrupted=interrupted)

@@ -48,12 +48,11 @@ from .initial import (
 from .loading_curve import LoadingCurve, loading_curve_uncertainty
 from .model_check import ModelCheck, check_model
 from .parameters import (
-    MECHANICS,
     ParameterMap,
     ParameterSpec,
-    _getter,
     fittable_names,
     law_fittable,
+    parameter_getter,
     scale_invariant_names,
 )
 from .regime_spread import Refit, RegimeSpread, regime_spread
@@ -68,7 +67,20 @@ from .residuals import (
 )
 from .sampling import check_sample_rates
 from .sensitivities import RecordingPrograms, StepJacobian, perturbed_mask
-from .solve import SolveResult, solve_least_squares, value_and_jacobian
+from .solve import (
+    LMSettings,
+    SolveResult,
+    SolveStatus,
+    solve_least_squares,
+    value_and_jacobian,
+)
+from .step_names import (
+    breakaway_names,
+    dynamics_names,
+    friction_names,
+    requested_names,
+    without_absent_directions,
+)
 from .uncertainty import Uncertainty, parameter_uncertainty
 
 STEPS = ("dynamics", "hysteresis", "friction", "joint")
@@ -93,12 +105,13 @@ direction the step response leaves flat (the piezo's mass), keeps the classical 
 Nielsen's runs further along it. The diagnosis's fits keep the classical update too:
 with Nielsen's (tried at 5d65386) their 15-step sizings ended elsewhere, which
 reordered near-tied entries on the frozen test split (7955ad4's run, reverted by
-5ebda14 and 74f3e49; benchmarks/results/diagnose_test_split_7955ad4.json)."""
+5ebda14 and 74f3e49; benchmarks/experiments/results/diagnose_test_split_7955ad4.json)."""
 STEP_SOLVE = {
-    "hysteresis": dict(initial_damping=1e-6),
-    "friction": dict(initial_damping=1e-3),
-    "joint": dict(gn_tol=JOINT_GN_TOL, initial_damping=1e-6,
-                  damping_update=JOINT_DAMPING_UPDATE),
+    "dynamics": LMSettings(),
+    "hysteresis": LMSettings(initial_damping=1e-6),
+    "friction": LMSettings(initial_damping=1e-3),
+    "joint": LMSettings(gn_tol=JOINT_GN_TOL, initial_damping=1e-6,
+                        damping_update=JOINT_DAMPING_UPDATE),
 }
 """How each step solves (:func:`~.solve.solve_least_squares`). Madsen, Nielsen &
 Tingleff (2004, §3.2) start the damping at 1e-6 of the largest diagonal of JᵀJ when
@@ -112,8 +125,6 @@ hysteresis step from six steps to three. The friction step's two parameters star
 from the profile's values, at 1e-3; the dynamics step starts from a rough guess, with
 optimistix's default (1). Only the joint step, the estimate, ends by the
 Gauss-Newton test."""
-DYNAMICS = ("Mp", "Dp", "Kp", "Ms", "Ds", "rho0")
-"""The dynamics step's names with the paper's law (:func:`dynamics_names` for any)."""
 
 
 def kept_finer(plan: StepPlan, before: StepPlan | None) -> StepPlan:
@@ -128,53 +139,6 @@ def kept_finer(plan: StepPlan, before: StepPlan | None) -> StepPlan:
             dataclasses.replace(before, substeps=plan.substeps) == plan:
         return before
     return plan
-
-
-def _law_step(actuator: Actuator, step: str, also_fit: Sequence[str]) -> list[str]:
-    return [p.name for p in law_fittable(actuator)
-            if p.step == step and (not p.on_request or p.name in also_fit)]
-
-
-def dynamics_names(actuator: Actuator, *, fix=(), also_fit: Sequence[str] = ()) -> list[str]:
-    """What the dynamics step fits: the piezo element's and the slider's masses,
-    dampings and stiffnesses, then the friction law's parameters flagged for this step
-    (on-request ones only when in ``also_fit``), less the fixed ones (``fix``)."""
-    return [n for n in MECHANICS + tuple(_law_step(actuator, "dynamics", also_fit))
-            if n not in fix]
-
-
-def friction_names(actuator: Actuator, *, fix=(), also_fit: Sequence[str] = ()) -> list[str]:
-    """What the friction step fits: the law's parameters flagged for it (on-request ones
-    only when in ``also_fit``), less the fixed ones (``fix``)."""
-    return [n for n in _law_step(actuator, "friction", also_fit) if n not in fix]
-
-
-def breakaway_names(actuator: Actuator, recordings, *, fix=()) -> list[str]:
-    """The law's per-direction quantities of the directions of ``recordings`` (a step
-    response's edge slips, so the dynamics step fits its direction's break-away)."""
-    dirs = {"backward" if r.drive.is_backward else "forward" for r in recordings}
-    return sorted({p.name for p in law_fittable(actuator)
-                   if p.direction in dirs and p.name not in fix})
-
-
-def without_absent_directions(names: Sequence[str], actuator: Actuator,
-                              recordings) -> list[str]:
-    """``names`` less the law's backward-only quantities when no recording is backward
-    (the forward value also serves sines and steps, so it always stays)."""
-    if any(r.drive.is_backward for r in recordings):
-        return list(names)
-    backward = {p.name for p in law_fittable(actuator) if p.direction == "backward"}
-    return [n for n in names if n not in backward]
-
-
-def _requested(actuator: Actuator, also_fit: Sequence[str]) -> list[str]:
-    optional = [p.name for p in law_fittable(actuator) if p.step and p.on_request]
-    unknown = [n for n in also_fit if n not in optional]
-    if unknown:
-        raise ValueError(f"{', '.join(unknown)}: not a parameter that the "
-                         f"{type(actuator.friction).__name__} law fits on request; "
-                         f"those are: {', '.join(optional) or 'none'}")
-    return list(also_fit)
 
 
 @dataclass(frozen=True)
@@ -200,6 +164,8 @@ class StepReport:
     result: SolveResult | None
     nrmse_before: float
     nrmse_after: float
+    """Mean NRMSE over the step's recordings before and after it, a fraction [-]
+    (files and consoles show it in percent)."""
     note: str = ""
     segments: list[PlanSegment] = field(default_factory=list)
     """The plans the step ran at, in order (more than one where it re-planned:
@@ -219,6 +185,7 @@ class Identification:
     steps: list[StepReport]
     data: Dataset
     nrmse: np.ndarray
+    """Per recording NRMSE, a fraction [-] (``fit.json``: ``nrmse_percent``)."""
     uncertainty: Uncertainty | None
     notes: list[str] = field(default_factory=list)
     q_sim: np.ndarray | None = None
@@ -296,7 +263,7 @@ def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dat
     ``residuals`` and ``evaluator`` of the last segment, the result joined over the
     segments (steps, time and evaluations summed, the start's cost and residual from
     the first), and each segment's plan and evaluations (:class:`PlanSegment`)."""
-    options = dict(STEP_SOLVE.get(name, {}))
+    settings = STEP_SOLVE.get(name, LMSettings())
     parts: list[SolveResult] = []
     segments: list[PlanSegment] = []
     while True:
@@ -313,10 +280,10 @@ def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dat
             return ""
 
         left = max_steps - sum(p.iterations for p in parts)
-        out = solve_least_squares(res, pmap.zeros(), max_steps=left, label=name, echo=say,
-                                  jacobian=evaluator,
+        out = solve_least_squares(res, pmap.zeros(), settings.replace(max_steps=left),
+                                  label=name, echo=say, jacobian=evaluator,
                                   value=evaluator.value if evaluator is not None else None,
-                                  stop_when=coarser, **options)
+                                  stop_when=coarser)
         act = (evaluator.actuator(out.theta) if evaluator is not None
                else pmap.actuator(jnp.asarray(out.theta)))
         parts.append(out)
@@ -325,19 +292,19 @@ def _solve_step(name: str, act: Actuator, free: list[str], extra: dict, sub: Dat
             break
         stepping = dataset_plan(act, sub)
         say(f"[{name}] re-planned: {out.interrupted}; going on with {stepping.substeps}")
-        options["initial_damping"] = out.damping
+        settings = settings.replace(initial_damping=out.damping)
     first, total = parts[0], sum(p.iterations for p in parts)
     # Interrupted at its last step, or its last segment at the steps left: the step's
     # own cap.
-    message = (f"not converged: hit max_steps={max_steps}"
-               if out.interrupted or (not out.converged and total >= max_steps
-                                      and "max_steps" in out.message)
-               else out.message)
+    capped = out.interrupted or (out.status is SolveStatus.STEP_CAP and total >= max_steps)
+    message = f"not converged: hit max_steps={max_steps}" if capped else out.message
+    status = SolveStatus.STEP_CAP if capped else out.status
     if len(parts) > 1:
         message = f"{message}; re-planned {len(parts) - 1}x"
     if message != out.message:
         out = dataclasses.replace(
-            out, message=message, iterations=total, wall_s=sum(p.wall_s for p in parts),
+            out, status=status, message=message, iterations=total,
+            wall_s=sum(p.wall_s for p in parts),
             cost_start=first.cost_start, residual_start=first.residual_start,
             jacobians=sum(p.jacobians for p in parts), values=sum(p.values for p in parts))
     return act, stepping, res, evaluator, out, segments
@@ -357,7 +324,8 @@ def _is_saw(r):
 
 def _apply_fixed(actuator: Actuator, fixed: dict[str, float]) -> Actuator:
     for name, value in fixed.items():
-        actuator = eqx.tree_at(_getter(name, actuator), actuator, jnp.asarray(float(value)))
+        actuator = eqx.tree_at(parameter_getter(name, actuator), actuator,
+                               jnp.asarray(float(value)))
     return actuator
 
 
@@ -409,7 +377,7 @@ def identify(
         raise ValueError(f"identification fits a friction law whose parameters name the "
                          f"steps that fit them; the starting parameters' law "
                          f"({type(init.friction).__name__}) names none")
-    requested = _requested(init, [*also_fit, *(["zba_ratio"] if free_ratio else []),
+    requested = requested_names(init, [*also_fit, *(["zba_ratio"] if free_ratio else []),
                                   *(["rho1"] if fit_rho1 else [])])
     cannot = [n for n in fix if n not in fittable_names(init) or n == "pi_weights"]
     if cannot:

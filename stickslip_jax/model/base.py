@@ -23,7 +23,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .registry import LawParameter
+from .law_parameter import LawParameter
 
 
 class DriveContext(eqx.Module):
@@ -121,16 +121,12 @@ class AbstractFriction(eqx.Module):
 
     def to_params(self) -> dict[str, float]:
         """This law's entries of a parameter file [SI], in :attr:`parameters` order:
-        each parameter whose field this class has (an alias takes the value of its
-        first target). The inverse of :meth:`from_params`."""
+        each parameter whose field this class has. Shorthands (``alias_for``: ``z_ba``)
+        are left out: a file holds only what is read, so that editing any value of it
+        changes the model. The inverse of :meth:`from_params`."""
         fields = {f.name for f in dataclasses.fields(self)}
-        by_name = {p.name: p for p in self.parameters}
-        out = {}
-        for p in self.parameters:
-            attr = by_name[p.alias_for[0]].attr if p.alias_for else p.attr
-            if attr in fields:
-                out[p.name] = float(getattr(self, attr))
-        return out
+        return {p.name: float(getattr(self, p.attr)) for p in self.parameters
+                if not p.alias_for and p.attr in fields}
 
     @abc.abstractmethod
     def z_rate(self, z, xdot, drive: DriveContext):

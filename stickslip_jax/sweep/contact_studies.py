@@ -61,15 +61,18 @@ class StepCurves:
     def plot(self, path=None, *, title: str = ""):
         """Step per period [nm] against amplitude, one line per setting. Returns the
         figure (written to ``path`` when given)."""
-        from ..plots import colormap, save_figure, subplots
+        from ..plots import coincident_labels, colormap, curve_style, save_figure, subplots
 
-        fig, ax = subplots(figsize=(6.2, 4))
+        fig, ax = subplots(figsize=(6.4, 4.2))
         colours = colormap("viridis")(np.linspace(0, 0.85, max(len(self.settings), 1)))
-        for i, (s, c) in enumerate(zip(self.settings, colours, strict=True)):
+        names = [_setting_name(self.label, s) for s in self.settings]
+        same = coincident_labels(names, self.steps_m, unit=" nm", scale=1e9)
+        for i, (name, c) in enumerate(zip(names, colours, strict=True)):
             thr = self.thresholds_V[i]
-            name = s if isinstance(s, str) else f"{self.label} {s:g}"
-            ax.plot(self.amplitudes_V, self.steps_m[i] * 1e9, "-o", ms=3, color=c,
-                    label=f"{name}: 0-amplitude {thr:.1f} V" if np.isfinite(thr) else name)
+            ax.plot(self.amplitudes_V, self.steps_m[i] * 1e9, color=c, lw=1.3,
+                    **curve_style(i),
+                    label=name + same[i] + (f": 0-amplitude {thr:.1f} V" if np.isfinite(thr)
+                                            else ": no step in this range"))
             if np.isfinite(thr):
                 ax.axvline(thr, color=c, lw=0.7, ls=":")
         ax.set_xlabel("amplitude [V]")
@@ -81,6 +84,15 @@ class StepCurves:
         if path is not None:
             save_figure(fig, path)
         return fig
+
+
+def _setting_name(label: str, setting) -> str:
+    """A setting as the legend says it: a label (a spread's name) as is, a value with
+    the unit of a ``"name [unit]"`` label after it (``preload 0.5 N``)."""
+    if isinstance(setting, str):
+        return setting
+    name, _, unit = label.partition(" [")
+    return f"{name} {setting:g} {unit.rstrip(']')}".rstrip()
 
 
 def _require_ceim(actuator: Actuator) -> CEIMElastoPlastic:

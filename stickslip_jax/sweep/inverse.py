@@ -57,7 +57,7 @@ def _at(actuator, amps, freqs, backward, **kw):
 
 def drive_for_velocity(actuator: Actuator, velocity_m_s: float, *, frequencies,
                        amplitudes, periods: int = 10, settle: int = 2, rtol: float = 0.005,
-                       iterations: int = 6) -> tuple[list[DriveChoice], list[float]]:
+                       iterations: int = 12) -> tuple[list[DriveChoice], list[float]]:
     """Drives reaching ``|velocity_m_s|`` in the direction of its sign (negative:
     backward). Returns the choices (one per frequency where the amplitude range
     reaches the target) and the frequencies [Hz] where it does not."""
@@ -85,19 +85,31 @@ def drive_for_velocity(actuator: Actuator, velocity_m_s: float, *, frequencies,
         return [], unreachable
     lo, hi, v_lo, v_hi = (np.array(c) for c in zip(*brackets, strict=True))
     f_keep = freqs[keep]
-    # Secant (regula falsi with bracket kept) on all kept frequencies at once.
-    a = np.where(hi > lo, lo + (target - v_lo) * (hi - lo) / np.maximum(v_hi - v_lo, 1e-30), hi)
-    result = None
+
+    def secant(lo, hi, f_lo, f_hi, a):
+        return np.where(hi > lo, lo - f_lo * (hi - lo) / np.maximum(f_hi - f_lo, 1e-30), a)
+
+    # Regula falsi with the bracket kept, on all kept frequencies at once, with the
+    # Illinois rule: an end kept twice in a row has its residual halved. Above the
+    # 0-amplitude threshold |v| is convex in the amplitude, and plain regula falsi
+    # then moves one end only, by less each time (1 kHz at 50 µm/s missed by 8 % after
+    # six steps).
+    f_lo, f_hi = v_lo - target, v_hi - target
+    a = secant(lo, hi, f_lo, f_hi, hi)
+    result, last_side = None, np.zeros(a.shape, int)
     for _ in range(iterations):
         result = _at(actuator, a, f_keep, backward, **kw)
         v = np.abs(result.velocity_m_s)
         if np.all(np.abs(v / target - 1) <= rtol):
             break
         below = v < target
-        lo, v_lo = np.where(below, a, lo), np.where(below, v, v_lo)
-        hi, v_hi = np.where(below, hi, a), np.where(below, v_hi, v)
-        a = np.where(hi > lo, lo + (target - v_lo) * (hi - lo) / np.maximum(v_hi - v_lo, 1e-30),
-                     a)
+        side = np.where(below, -1, 1)
+        f_hi = np.where(below & (last_side == -1), 0.5 * f_hi, f_hi)
+        f_lo = np.where(~below & (last_side == 1), 0.5 * f_lo, f_lo)
+        lo, f_lo = np.where(below, a, lo), np.where(below, v - target, f_lo)
+        hi, f_hi = np.where(below, hi, a), np.where(below, f_hi, v - target)
+        last_side = side
+        a = secant(lo, hi, f_lo, f_hi, a)
     choices = [DriveChoice(float(f), float(ai), float(p.velocity_m_s), float(p.step_m),
                            p.regime, bool(p.regime == "stepping"
                                           and abs(abs(p.velocity_m_s) / target - 1) <= rtol))

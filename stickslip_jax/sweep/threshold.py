@@ -62,17 +62,23 @@ def plot_ratio_study(amplitudes, study: dict, *, frequency_Hz: float, path=None,
                      extra: dict | None = None):
     """Step per period [nm] against amplitude [V], one line per ratio with its
     threshold marked; ``extra`` adds labelled curves (e.g. LuGre). Returns the figure."""
-    from ..plots import colormap, subplots
+    from ..plots import coincident_labels, colormap, curve_style, subplots
 
-    fig, ax = subplots(figsize=(6, 4))
+    fig, ax = subplots(figsize=(6.4, 4.2))
     colours = colormap("plasma")(np.linspace(0, 0.85, max(len(study), 1)))
-    for colour, (ratio, (steps, thr)) in zip(colours, study.items(), strict=True):
-        ax.plot(amplitudes, np.asarray(steps) * 1e9, "-o", ms=3, color=colour,
-                label=f"z_ba/z_ss = {ratio:g}: 0-amplitude {thr:.1f} V")
+    names = [f"z_ba/z_ss = {ratio:g}" for ratio in study] + list(extra or {})
+    curves = [np.asarray(steps) for steps, _ in study.values()] + [
+        np.asarray(steps) for steps in (extra or {}).values()]
+    same = coincident_labels(names, curves, unit=" nm", scale=1e9)
+    for i, (colour, (steps, thr)) in enumerate(zip(colours, study.values(), strict=True)):
+        ax.plot(amplitudes, np.asarray(steps) * 1e9, color=colour, lw=1.3, **curve_style(i),
+                label=names[i] + same[i] + (f": 0-amplitude {thr:.1f} V" if np.isfinite(thr)
+                                            else ": no step in this range"))
         if np.isfinite(thr):
             ax.axvline(thr, color=colour, lw=0.8, ls=":")
-    for label, steps in (extra or {}).items():
-        ax.plot(amplitudes, np.asarray(steps) * 1e9, "k--", lw=1, label=label)
+    for k, steps in enumerate((extra or {}).values(), start=len(study)):
+        ax.plot(amplitudes, np.asarray(steps) * 1e9, color="k", lw=1,
+                **{**curve_style(k), "ls": "--"}, label=names[k] + same[k])
     ax.set_xlabel("amplitude [V]")
     ax.set_ylabel("step per period [nm]")
     ax.set_title(f"step length vs amplitude at {frequency_Hz:g} Hz (Nguyen 2012 Fig. 5)",

@@ -13,10 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SCANNING_FRACTION = 0.1
-"""A drive *steps* when the step per period exceeds this fraction of the
-peak-to-peak output within the last period; otherwise it *scans* (the slider
-follows the piezo back and forth), as :func:`identify.report.classify_regime`."""
+from ..regime import drive_steps
 
 
 @dataclass(frozen=True)
@@ -51,5 +48,6 @@ def steady_velocity(q, frequency_Hz: float, sample_rate_Hz: float, periods: int,
     per = sample_rate_Hz / frequency_Hz
     last = np.asarray(q)[int(np.floor((periods - 1) * per)): int(np.ceil(periods * per))]
     swing = float(np.ptp(last)) if last.size else 0.0
-    regime = "stepping" if abs(step) > SCANNING_FRACTION * swing else "scanning"
+    # Stepping or scanning by the one definition every command uses (stickslip_jax.regime).
+    regime = "stepping" if drive_steps(step, swing) else "scanning"
     return PointVelocity(float(step * frequency_Hz), float(step), swing, regime, ends)

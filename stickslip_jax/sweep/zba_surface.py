@@ -30,9 +30,9 @@ from ..files import atomic_write_text, check_output_path
 from ..model.base import DriveContext
 from ..model.friction import AbstractElastoPlastic, ElastoPlastic
 from ..simulate import (
-    _model_output,
     default_batching,
     drive_context,
+    model_output,
     over_rows,
     pad_voltages,
     plan_steps,
@@ -96,8 +96,9 @@ class ZbaSurfaceElastoPlastic(AbstractElastoPlastic):
 # ----------------------------------------------------------------------- points
 @dataclass(frozen=True)
 class ZbaPoints:
-    """Per recording: drive, fitted ``z_ba_m`` [m], ``std_error_m`` [m], ``nrmse`` [-],
-    ``converged`` and ``determined`` (relative standard error below 2 %)."""
+    """Per recording: drive, fitted ``z_ba_m`` [m], ``std_error_m`` [m], ``nrmse`` [-] (a
+    percentage in the CSV, ``nrmse_percent``), ``converged`` and ``determined``
+    (relative standard error below 2 %)."""
 
     names: list[str]
     amplitude_V: np.ndarray
@@ -110,13 +111,14 @@ class ZbaPoints:
     determined: np.ndarray
 
     def to_csv(self) -> str:
-        rows = ["recording,amplitude_V,frequency_Hz,direction,z_ba_um,std_error_um,nrmse,"
+        rows = ["recording,amplitude_V,frequency_Hz,direction,z_ba_um,std_error_um,"
+                "nrmse_percent,"
                 "converged,determined"]
         for i, n in enumerate(self.names):
             rows.append(f"{n},{self.amplitude_V[i]:.10g},{self.frequency_Hz[i]:.10g},"
                         f"{'backward' if self.backward[i] else 'forward'},"
                         f"{self.z_ba_m[i] * 1e6:.8g},{self.std_error_m[i] * 1e6:.3g},"
-                        f"{self.nrmse[i]:.4g},{bool(self.converged[i])},"
+                        f"{100 * self.nrmse[i]:.4g},{bool(self.converged[i])},"
                         f"{bool(self.determined[i])}")
         return "\n".join(rows) + "\n"
 
@@ -145,7 +147,7 @@ def fit_zba_points(actuator, recordings, *, stepping=None, max_steps: int = 40) 
         zb = z0 * jnp.exp(theta[0])
         act = eqx.tree_at(lambda a: (a.friction.z_ba_forward, a.friction.z_ba_backward),
                           actuator, (zb, zb))
-        diff = (_model_output(act, v, dt, d, plan) - q) * m
+        diff = (model_output(act, v, dt, d, plan) - q) * m
         diff = diff - m * jnp.sum(diff) / jnp.sum(m)
         return diff / s
 
@@ -364,44 +366,92 @@ def support_interval(amplitude, frequency, at_frequency: float) -> tuple[float, 
 
 
 def plot_zba_surface(points: ZbaPoints, fit: SurfaceFit, path=None):
-    """z_ba against amplitude, one panel (and y axis) per direction, one colour per
-    frequency: fitted points (markers with ±2 standard errors; x: not determined) and
-    the surface (lines), drawn only where it is supported: at each frequency, over the
-    amplitudes inside the convex hull of that direction's determined points
-    (:func:`support_interval`)."""
-    from ..plots import colormap, legend_on_labelled, subplots
+    """z_ba against amplitude, one panel (and y axis, plain µm with no offset) per
+    direction, one colour per frequency: fitted points (markers with ±2 standard
+    errors; x: not determined) and the surface (lines), drawn only where it is
+    supported: at each frequency, over the amplitudes inside the convex hull of that
+    direction's determined points (:func:`support_interval`).
 
-    fig, axes = subplots(1, 2, figsize=(10, 4))
+    A direction whose determined points are consistent with one constant (χ² of the
+    points about their 1/SE²-weighted mean within the 95 % quantile of χ²(n − 1)) is
+    flat within its uncertainty: its panel says so, with ``z_ba = X ± Y µm`` (the
+    weighted mean and its standard error, scaled by √(χ²/(n − 1)) when that exceeds
+    1), and draws that constant with its ±2 SE band instead of the surface, whose
+    shape would then be noise drawn as structure."""
+    from scipy.stats import chi2
+
+    from ..plots import colormap, subplots
+
+    def flat_level(z, se):
+        """(mean, its SE, χ², dof) [m] when ``z`` ± ``se`` [m] are consistent with a
+        constant, else None."""
+        if z.size < 2 or not np.all(np.isfinite(se) & (se > 0)):
+            return None
+        w = 1.0 / se**2
+        mean = float(np.sum(w * z) / np.sum(w))
+        c2, dof = float(np.sum(((z - mean) / se) ** 2)), z.size - 1
+        if c2 > chi2.ppf(0.95, dof):
+            return None
+        return mean, float(np.sqrt(1.0 / np.sum(w)) * max(1.0, np.sqrt(c2 / dof))), c2, dof
+
+    def plus_minus(x_um, y_um):
+        digits = max(0, 1 - int(np.floor(np.log10(y_um)))) if y_um > 0 else 4
+        return f"{x_um:.{digits}f} ± {y_um:.{digits}f} µm"
+
+    fig, axes = subplots(1, 2, figsize=(11, 4.6))
     freqs = np.unique(points.frequency_Hz)
     colours = colormap("viridis")(np.linspace(0, 0.85, max(freqs.size, 1)))
     for ax, back in zip(axes, (False, True), strict=True):
         name = "backward" if back else "forward"
         used = (points.backward == back) & points.determined
+        st = fit.stats.get(name, {})
+        flat = (flat_level(points.z_ba_m[used], points.std_error_m[used])
+                if st.get("supported") else None)
+        spread = []  # the surface's values over its support [µm]
         for colour, f in zip(colours, freqs, strict=True):
             sel = (points.frequency_Hz == f) & (points.backward == back)
             if np.any(sel):
                 ax.errorbar(points.amplitude_V[sel], points.z_ba_m[sel] * 1e6,
                             yerr=2 * points.std_error_m[sel] * 1e6, fmt="o", color=colour,
-                            ms=4, label=f"{f:g} Hz")
+                            ms=4, label=f"{f:g} Hz (±2 SE)")
                 bad = sel & ~points.determined
-                ax.plot(points.amplitude_V[bad], points.z_ba_m[bad] * 1e6, "x", color="red")
+                if np.any(bad):
+                    ax.plot(points.amplitude_V[bad], points.z_ba_m[bad] * 1e6, "x",
+                            color="red", label="not determined")
             span = (support_interval(points.amplitude_V[used], points.frequency_Hz[used], f)
-                    if fit.stats.get(name, {}).get("supported") else None)
+                    if st.get("supported") else None)
             if span is not None and span[1] > span[0]:
                 a = np.linspace(span[0], span[1], 60)
                 z = np.asarray(jax.vmap(lambda amp, f=f, b=back: fit.surface(amp, f, float(b)))(
                     jnp.asarray(a))) * 1e6
-                ax.plot(a, z, "-", color=colour, lw=1)
-        st = fit.stats.get(name, {})
-        extra = (f"; RMS {100 * st['rms_rel']:.2f} %, LOO {100 * st['loo_rms_rel']:.2f} %"
-                 if st.get("supported") else "; no surface")
-        ax.set_title(name + extra, fontsize=9)
+                spread.extend(z.tolist())
+                if flat is None:
+                    ax.plot(a, z, "-", color=colour, lw=1,
+                            label=None if spread[:-a.size] else "surface (its frequency's colour)")
+        if flat is not None:
+            mean_um, se_um, c2, dof = flat[0] * 1e6, flat[1] * 1e6, flat[2], flat[3]
+            ax.axhspan(mean_um - 2 * se_um, mean_um + 2 * se_um, color="0.6", alpha=0.3,
+                       lw=0, label="±2 SE of the constant")
+            ax.axhline(mean_um, color="k", ls="--", lw=1,
+                       label="constant (weighted mean of the points)")
+            span_nm = (f"; surface varies {1e3 * np.ptp(spread):.2g} nm: noise, not drawn"
+                       if spread else "")
+            ax.set_title(f"{name}: flat within uncertainty\nz_ba = "
+                         f"{plus_minus(mean_um, se_um)}\n(χ² = {c2:.3g} for {dof} dof about "
+                         f"it{span_nm})", fontsize=8)
+        elif st.get("supported"):
+            ax.set_title(f"{name}: surface RMS {100 * st['rms_rel']:.2g} %, leave-one-out "
+                         f"{100 * st['loo_rms_rel']:.2g} %", fontsize=9)
+        else:
+            ax.set_title(f"{name}: no surface", fontsize=9)
+        ax.ticklabel_format(axis="y", style="plain", useOffset=False)
         ax.set_xlabel("amplitude [V]")
         ax.set_ylabel(f"z_ba, {name} drive [µm]")
         ax.grid(alpha=0.25)
-    legend_on_labelled(axes, fontsize=7)
-    fig.suptitle("z_ba per recording (markers, ±2 SE; x: not determined) and the surface "
-                 "(lines, only within the points' convex hull)", fontsize=10)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best", framealpha=0.85)
+    fig.suptitle("z_ba per recording (markers, ±2 SE) and the surface (lines, only within "
+                 "the points' convex hull)", fontsize=10)
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=130)
