@@ -225,13 +225,12 @@ def _law_entries(friction) -> list[tuple[str, float, str]]:
         records = {p.name: p for p in friction.parameters}
     except (AttributeError, TypeError, ValueError):  # not a registered law's form
         return []
-    for p in records.values():
-        if not (p.alias_for and p.name in values):
-            continue
+    for p in records.values():  # (written files hold the targets, not the alias)
         targets = [values.get(t) for t in p.alias_for]
-        agree = all(t == values[p.name] for t in targets)
-        for name in (p.alias_for if agree else (p.name,)):
-            values.pop(name, None)
+        if targets and None not in targets and len(set(targets)) == 1:
+            for name in p.alias_for:
+                values.pop(name)
+            values[p.name] = targets[0]
     return [(n, v, records[n].unit) for n, v in values.items() if n in records]
 
 
