@@ -19,7 +19,7 @@ from .adjoint import (
     with_forward_jacobian,
 )
 from .compilation_cache import use_compilation_cache
-from .diagnose import CATALOGUE, Diagnosis, Policy, Verdict, diagnose
+from .diagnose import CATALOGUE, DiagnoseConfig, Diagnosis, Policy, Verdict, diagnose
 from .drive_inference import DriveInfo, infer_drive
 from .files import InputOverwriteError, OutputExistsError
 from .identify import HysteresisOnlyModel, Identification, fit_hysteresis_only, identify
@@ -167,7 +167,7 @@ __all__ = [
     "AbstractAdjoint", "CheckpointedScan", "ForwardSensitivities", "with_forward_jacobian",
     "step", "transition_alpha",
     "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
-    "CATALOGUE", "Diagnosis", "Policy", "Verdict", "diagnose",
+    "CATALOGUE", "DiagnoseConfig", "Diagnosis", "Policy", "Verdict", "diagnose",
     "ChainedOutput", "Creep", "ExponentialDrift", "LearnedForce", "LowPassInput",
     "PeriodicSensorError", "PositionRipple", "RateDependentStroke", "SecondOrderInput",
     "SensorOutput",

@@ -2,11 +2,9 @@
 
 Every number that decides what the diagnosis sizes, refits, names or reports as
 indistinguishable is a field of :class:`Policy`, with what it means and why its
-default; :func:`~stickslip_jax.diagnose.run.diagnose` takes one (``policy=Policy()``),
-as optimistix keeps its tolerances on the solver. The work that bounds a run is not
-here: ``max_steps``, ``top``, ``max_rounds`` and ``work_budget`` are arguments of
-:func:`~stickslip_jax.diagnose.run.diagnose`, as ``max_steps`` is of an optimistix
-solve.
+default; a :class:`~.config.DiagnoseConfig` holds one, as optimistix keeps its
+tolerances on the solver. The work that bounds a run is not here: step caps, rounds,
+refits per round and the work budget are the configuration's other fields.
 
 The quantities the thresholds refer to, all on the noise-whitened residual ``e/σ``
 (each recording's residual divided by its own noise level, estimated from the data)

@@ -20,6 +20,7 @@ from ..model.extensions import LEARNED_FEATURES
 from ..significance import per_recording_chi2
 from .budget import REIDENTIFY_EVALUATIONS
 from .catalogue import Candidate
+from .config import DEFAULT_CONFIG, DiagnoseConfig
 from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
 from .problem import OverBudget, Problem
@@ -41,6 +42,17 @@ class RefitSetup:
     policy: Policy = DEFAULT_POLICY
     regimes: tuple[str, ...] = ()
     """The regime of each recording, for the leave-one-regime-out check (:mod:`.holdout`)."""
+    identify_max_steps: int = DEFAULT_CONFIG.identify_max_steps
+    """Steps per identification step of a re-identification at most."""
+    carry_on_steps: int = DEFAULT_CONFIG.carry_on_steps
+    """Steps at most by which a free sizing is carried on (:mod:`.sizing`)."""
+
+    @classmethod
+    def from_config(cls, problem: Problem, base_names: list[str], n_base: int,
+                    config: DiagnoseConfig, regimes: tuple[str, ...]) -> RefitSetup:
+        """The setup of a diagnosis run as ``config``."""
+        return cls(problem, base_names, n_base, config.max_steps, config.policy, regimes,
+                   config.identify_max_steps, config.carry_on_steps)
 
     def columns(self, start: Actuator, specs: dict) -> int:
         """A refit's θ columns: the baseline's and the entry's own quantities, freed
@@ -226,7 +238,8 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
     try:
         entry_init = cand.carry(init, source)  # the entry's slot, refitted
         ident = identify(data.recordings, init=entry_init, fix=fix, steps=staged,
-                         extra=specs, max_steps=60, uncertainty=False)
+                         extra=specs, max_steps=setup.identify_max_steps,
+                         uncertainty=False)
         budget.charge(problem.identification_work(ident, entry_init))
         rss_staged = problem.cost_of_output(ident.actuator, ident.q_sim)
     except ValueError as err:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -164,6 +165,8 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         # What the data can tell from the noise (stickslip_jax/significance.py).
         "significance": d.significance,
         "detection_limits": d.detection_limits,
+        # Everything it ran with (the policy included): the run can be repeated as is.
+        "config": dataclasses.asdict(d.config) if d.config is not None else None,
         "criterion": criterion_text(d.policy),
         "score_test": score_test_text(d.policy),
         "candidates_by_round": rounds,

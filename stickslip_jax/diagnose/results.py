@@ -10,6 +10,7 @@ import numpy as np
 
 from ..identify.dataset import Dataset
 from ..model.actuator import Actuator
+from .config import DiagnoseConfig
 from .locate import RecordingResidual
 from .policy import DEFAULT_POLICY, Policy
 from .problem import FIRST_ORDER_REACH
@@ -199,3 +200,6 @@ class Diagnosis:
     detection_limits: dict = field(default_factory=dict)
     """Per catalogue entry, the smallest strength a refit could name on these
     recordings (:mod:`.scores`): ``strength`` in ``unit``, ``effect_nm``, ``probe``."""
+    config: DiagnoseConfig | None = None
+    """How it ran (:class:`~.config.DiagnoseConfig`: the policy, rounds, step caps, the
+    work budget)."""

@@ -101,8 +101,9 @@ from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
 from ..noise import noise_sigma, noise_sigma_relative_se
 from ..significance import Significance
-from .budget import DEFAULT_WORK_BUDGET, UNIT, Budget
+from .budget import UNIT, Budget
 from .catalogue import CATALOGUE, Candidate
+from .config import DEFAULT_CONFIG, DiagnoseConfig
 from .holdout import held_out_cost
 from .learned import fit_learned
 from .locate import analyse_recording, mismatch_entries, residual_peaks
@@ -172,7 +173,7 @@ class _Baseline:
 
 
 def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
-              max_steps: int, notes: list[str]) -> _Baseline:
+              config: DiagnoseConfig, notes: list[str]) -> _Baseline:
     """Phase 1: identify the paper's model (unless ``identify_steps`` is empty), then
     polish it on the whitened residual; what falls short of its optimum goes to
     ``notes``."""
@@ -181,7 +182,7 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
     if identify_steps:
         say("[baseline] identification (the paper's model)")
         ident = identify(data.recordings, init=init, fix=fix, steps=identify_steps,
-                         max_steps=60, echo=say)
+                         max_steps=config.identify_max_steps, echo=say)
         act = ident.actuator
         budget.charge(problem.identification_work(ident, init))
         notes += [f"Baseline identification, step '{s.name}': {s.result.message}; the "
@@ -194,7 +195,8 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
     # whitened one): the polish starts near its optimum, with little damping.
     program = problem.program(act, base_names, {})
     act, rss, polish = problem.fit_from(program, program.pmap.zeros(),
-                                        label="baseline polish", max_steps=3 * max_steps,
+                                        label="baseline polish",
+                                        max_steps=3 * config.max_steps,
                                         initial_damping=1e-3 if identify_steps else 1.0)
     if not polish.converged:
         # Every later comparison is against this optimum: a baseline short of its own
@@ -210,14 +212,15 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
                      polish.residual, polish.jacobian, at_act)
 
 
-def _locate(problem: Problem, q0: np.ndarray, policy: Policy):
+def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
     """Phase 2: each recording's residual analysis, the flagged ones, and the hints
     the probes use (shared residual peaks, the largest voltage slew)."""
     data, sigmas = problem.data, problem.sigmas
     analyses = [analyse_recording(r, q0[i], sigmas[i]) for i, r in enumerate(data.recordings)]
     mismatch = mismatch_entries(analyses)
     hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas,
-                                        noise_z=policy.significance_z),
+                                        band=config.peak_band_Hz, n_peaks=config.n_peaks,
+                                        noise_z=config.policy.significance_z),
              "max_slew_V_s": max(float(np.max(np.abs(np.diff(r.voltage_V)))) / r.dt
                                  for r in data.recordings),
              "sample_interval_s": min(float(r.dt) for r in data.recordings)}
@@ -308,7 +311,8 @@ def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     if bar is None:
         return False
     if unbounded([res], bar) and res.name in free_sizings:
-        carry_on_free_sizing(problem, res, free_sizings, at.rss)
+        carry_on_free_sizing(problem, res, free_sizings, at.rss,
+                             max_steps=setup.carry_on_steps)
     if not cannot_rival(res, bar):
         return False
     res.set_aside(CandidateStatus.CANNOT_RIVAL, cannot_rival_note(res, bar))
@@ -347,7 +351,8 @@ def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult
             # A free sizing that stopped short of its optimum bounds nothing: carry it
             # on (a few parameters, the compiled program) so that it can.
             for res in unbounded(ranked, reach):
-                carry_on_free_sizing(setup.problem, res, free_sizings, at.rss)
+                carry_on_free_sizing(setup.problem, res, free_sizings, at.rss,
+                                     max_steps=setup.carry_on_steps)
         for res in fallback_refits(ranked, reach):
             refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings))
         for res in rivals_in_reach(ranked, at.rss, tolerance_rss, n_obs, policy):
@@ -475,29 +480,26 @@ def _terms(act: Actuator) -> list[str]:
 
 def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
              identify_steps: Sequence[str] = STEPS, candidates: Sequence[str] | None = None,
-             max_rounds: int = 3, top: int = 3, max_steps: int = 25, fallback: bool = True,
-             size_at_most: int | None = None,
-             work_budget: float | None = DEFAULT_WORK_BUDGET,
-             policy: Policy = Policy(),
-             echo: Callable[[str], None] | None = None) -> Diagnosis:
+             config: DiagnoseConfig | None = None,
+             echo: Callable[[str], None] | None = None, **changes) -> Diagnosis:
     """Diagnose what the baseline model leaves out of ``recordings`` (module docstring).
 
     ``init`` the starting actuator; ``fix`` quantities held (SI; the mass scale, e.g.
     ``{"Ms": 0.0247}``); ``identify_steps`` the identification steps run before the
     polish (empty: start the polish from ``init``); ``candidates`` catalogue names to
-    consider (default all); ``max_rounds`` accept at most this many entries; ``top``
-    refit at most this many entries per round; ``max_steps`` LM steps per refit;
-    ``size_at_most`` entries sized per round (largest |score| first; None: the
-    policy's :attr:`~.Policy.size_at_most`); ``fallback`` fit the learned correction
-    when no entry explains the residual; ``work_budget`` [sample-evaluations] skip the
-    optional work (fallback refits, second looks, re-identifications, refits after
-    round one) whose counted work would pass it, and say so in the notes (``None`` or
-    0: no limit; :mod:`.budget`); ``policy`` the thresholds every decision reads
-    (:class:`~.policy.Policy`). No decision depends on wall time; ``timings`` are for
-    display.
+    consider (default all); ``config`` how it runs (:class:`~.config.DiagnoseConfig`:
+    the policy every decision reads, rounds, refits per round, step caps, the work
+    budget), with ``changes`` to its fields as keywords (``max_steps=15``,
+    ``work_budget=0``, ``policy=Policy(...)``). Work past the budget that is optional
+    (fallback refits, second looks, re-identifications, refits after round one) is
+    skipped and said in the notes (:mod:`.budget`). No decision depends on wall time;
+    ``timings`` are for display.
     """
+    config = (config or DEFAULT_CONFIG).replace(**changes)
+    policy, max_steps, max_rounds = config.policy, config.max_steps, config.max_rounds
+    top, fallback, work_budget = config.top, config.fallback, config.work_budget
+    size_at_most = config.sized_per_round
     say = echo or (lambda s: None)
-    size_at_most = policy.size_at_most if size_at_most is None else size_at_most
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
     budget = Budget(work_budget)
@@ -516,7 +518,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
 
     # 1. Baseline.
     t0 = time.perf_counter()
-    base = _baseline(problem, init, identify_steps, max_steps, notes)
+    base = _baseline(problem, init, identify_steps, config, notes)
     chi2_0 = base.rss / n_obs
     significance = _significance(problem, base, policy)
     problem.significance = significance
@@ -529,7 +531,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         f"the baseline is {'within' if baseline_adequate else 'beyond'} it")
 
     # 2. Locate.
-    analyses0, mismatch, hints = _locate(problem, base.q, policy)
+    analyses0, mismatch, hints = _locate(problem, base.q, config)
     say(f"[baseline] NRMSE {100 * base.nrmse.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
         f"{len(mismatch)} recording(s) flagged; residual peaks "
         f"{', '.join(f'{f:.0f} Hz' for f in hints['peaks_Hz']) or 'none'}")
@@ -540,7 +542,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     staged = [st for st in identify_steps if st != "joint"]
     pool, not_testable = _candidate_pool(candidates, data.recordings)
     regimes = tuple(a.regime for a in analyses0)
-    setup = RefitSetup(problem, base.names, base.n_base, max_steps, policy, regimes)
+    setup = RefitSetup.from_config(problem, base.names, base.n_base, config, regimes)
     # The leave-one-regime-out cost of each round's start (:mod:`.holdout`).
     held_out = (held_out_cost(base.residual, base.jacobian, regimes)
                 if base.jacobian is not None and base.residual is not None else None)
@@ -588,7 +590,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                                    rss - n_obs if accepted else None, say, policy)
         free_sizings: dict[str, FreeSizing] = {}
         sized = size_entries(problem, chosen, pool, scores, act, unpolished, rss,
-                             base.names, seeded, round_one=rnd == 0, policy=policy,
+                             base.names, seeded, round_one=rnd == 0,
+                             max_steps=config.size_steps, policy=policy,
                              baseline_span=span, free_sizings=free_sizings)
         ranked = sorted([r for r in results if r.name in sized],
                         key=lambda r: -rank_value(r))
@@ -656,4 +659,5 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                      rss_final / n_obs, analyses0, analyses_f, mismatch, accepted, rounds,
                      not_testable, unexplained, verdict, base.q, qf, _terms(act), timings,
                      notes, [float(p) for p in hints["peaks_Hz"]], numerical,
-                     budget.record(), policy, significance.record(), detection_limits)
+                     budget.record(), policy, significance.record(), detection_limits,
+                     config)

@@ -1,18 +1,18 @@
 """Sizing: which scored entries are sized, and the sizing itself.
 
 An entry is sized with the baseline held: its own 1-3 parameters fitted
-(:data:`SIZE_STEPS` steps at most), cheap. It starts from the Gauss-Newton step of the
-score test, the entry at its strength and the baseline moved by its share of the step
-(the best of 1, 1/2, 1/4, 1/8 of it; :func:`first_order_start`); an entry with seeds
-whose first-order sign is wrong starts from its cheapest seed (:func:`best_seed`). In
-round one it is sized on the baseline before its polish too, and the better sizing is
-kept (:func:`size_best`), when the polish moved the baseline: :func:`~.run.diagnose`
-passes the polished baseline as ``unpolished`` (no second sizing) when the polish
-removed no material part of the identified baseline's cost (within the tolerance,
-:mod:`~stickslip_jax.significance`), as after an identification whose joint step already minimised
-the whitened residual; the two are then one baseline to the data, and a second
-sizing from it would differ only by its cruder start. What the sizing removed,
-``size_drop``, ranks the refits with the score (:func:`~.rules.rank_value`).
+(:attr:`~.config.DiagnoseConfig.size_steps` steps at most), cheap. It starts from the
+Gauss-Newton step of the score test, the entry at its strength and the baseline moved by
+its share of the step (the best of 1, 1/2, 1/4, 1/8 of it; :func:`first_order_start`);
+an entry with seeds whose first-order sign is wrong starts from its cheapest seed
+(:func:`best_seed`). In round one it is sized on the baseline before its polish too, and
+the better sizing is kept (:func:`size_best`), when the polish moved the baseline:
+:func:`~.run.diagnose` passes the polished baseline as ``unpolished`` (no second sizing)
+when the polish removed no material part of the identified baseline's cost (within the
+tolerance, :mod:`~stickslip_jax.significance`), as after an identification whose joint
+step already minimised the whitened residual; the two are then one baseline to the data,
+and a second sizing from it would differ only by its cruder start. What the sizing
+removed, ``size_drop``, ranks the refits with the score (:func:`~.rules.rank_value`).
 
 The sized entry is then fitted once more with the baseline free *to first order*
 (:func:`size_with_baseline_free`): its own parameters fitted to the residual less its
@@ -53,14 +53,6 @@ from .catalogue import Candidate, Probe
 from .policy import DEFAULT_POLICY, Policy
 from .problem import FIRST_ORDER_REACH, BaselineSpan, FitProgram, Problem, largest_move
 from .results import CandidateResult, CandidateStatus
-
-SIZE_STEPS = 15
-"""Levenberg-Marquardt steps of a sizing at most (a few parameters, the baseline
-held)."""
-CARRY_ON_STEPS = 2 * SIZE_STEPS
-"""Steps at most by which a free sizing that stopped short of its optimum is carried on
-before it bounds a fallback refit (:func:`carry_on_free_sizing`): a few parameters on
-the projected residual, a fraction of one refit step's work each."""
 
 
 def first_order_start(problem: Problem, act: Actuator, base_names: list[str],
@@ -125,16 +117,16 @@ class HeldSizing:
     """It ended by its Gauss-Newton test, not at its step cap."""
 
 
-def size_best(problem: Problem, name: str, starts) -> HeldSizing | None:
+def size_best(problem: Problem, name: str, starts, *, max_steps: int) -> HeldSizing | None:
     """Size an entry from each ``(tag, start, specs)`` of ``starts`` (its own parameters,
-    the baseline held, :data:`SIZE_STEPS` steps at most): the lowest
-    (:class:`HeldSizing`), or None."""
+    the baseline held, ``max_steps`` steps at most: :attr:`~.config.DiagnoseConfig.
+    size_steps`): the lowest (:class:`HeldSizing`), or None."""
     best = None
     for tag, start, specs in starts:
         label = f"size {name} ({tag})" if tag else f"size {name}"
         program = problem.program(start, list(specs), specs)
         sized, cost, out = problem.fit_from(program, program.pmap.zeros(), label=label,
-                                            max_steps=SIZE_STEPS)
+                                            max_steps=max_steps)
         if best is None or cost < best.cost:
             best = HeldSizing(sized, specs, program, np.asarray(out.theta), float(cost),
                               bool(out.converged))
@@ -182,16 +174,17 @@ class FreeSizing:
         return ParameterMap.make(sized, list(base_names)).actuator(np.asarray(self.move),
                                                                    xp=np)
 
-    def carried_on(self, problem: Problem, max_steps: int = CARRY_ON_STEPS) -> FreeSizing:
+    def carried_on(self, problem: Problem, max_steps: int) -> FreeSizing:
         """The same fit carried on from where it stopped, at most ``max_steps`` more
-        steps (no compile: the same program)."""
+        steps (:attr:`~.config.DiagnoseConfig.carry_on_steps`; no compile: the same
+        program)."""
         return size_with_baseline_free(problem, self.name, self.program, self.theta,
                                        self.span, max_steps=max_steps,
                                        tag="baseline free to first order, carried on")
 
 
 def size_with_baseline_free(problem: Problem, name: str, program: FitProgram, theta,
-                            baseline_span: BaselineSpan, *, max_steps: int = SIZE_STEPS,
+                            baseline_span: BaselineSpan, *, max_steps: int,
                             tag: str = "baseline free to first order") -> FreeSizing:
     """The sized entry's own parameters (``program``'s, from ``theta``, where the held
     sizing ended) fitted to the residual less its part in ``baseline_span``
@@ -230,12 +223,13 @@ def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> No
 
 
 def carry_on_free_sizing(problem: Problem, res: CandidateResult,
-                         free_sizings: dict[str, FreeSizing], rss: float) -> None:
-    """Carry ``res``'s free sizing (in ``free_sizings``, replaced there) on
-    (:meth:`FreeSizing.carried_on`) and record it (:func:`record_free_sizing`): a
-    sizing that stopped short of its optimum bounds nothing
-    (:func:`~.rules.refit_reach`)."""
-    free = free_sizings[res.name] = free_sizings[res.name].carried_on(problem)
+                         free_sizings: dict[str, FreeSizing], rss: float, *,
+                         max_steps: int) -> None:
+    """Carry ``res``'s free sizing (in ``free_sizings``, replaced there) on by at most
+    ``max_steps`` steps (:meth:`FreeSizing.carried_on`) and record it
+    (:func:`record_free_sizing`): a sizing that stopped short of its optimum bounds
+    nothing (:func:`~.rules.refit_reach`)."""
+    free = free_sizings[res.name] = free_sizings[res.name].carried_on(problem, max_steps)
     record_free_sizing(res, free, rss)
 
 
@@ -284,13 +278,14 @@ def chosen_for_sizing(results: list[CandidateResult], seeded: set[str], size_at_
 def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
                  pool: Sequence[Candidate], scores: dict, act: Actuator,
                  unpolished: Actuator, rss: float, base_names: list[str],
-                 seeded: set[str], *, round_one: bool,
+                 seeded: set[str], *, round_one: bool, max_steps: int,
                  policy: Policy = DEFAULT_POLICY,
                  baseline_span: BaselineSpan | None = None,
                  free_sizings: dict[str, FreeSizing] | None = None,
                  ) -> dict[str, HeldSizing]:
     """Size each entry of ``chosen`` whose |score| reaches :attr:`~.Policy.score_min`,
-    from the round's optimum ``act`` (cost ``rss``) and, in round one, from
+    (``max_steps`` steps at most each) from the round's optimum ``act`` (cost ``rss``)
+    and, in round one, from
     ``unpolished`` too (the polish can bend the baseline to mimic part of an effect, a
     local optimum the joint refit may not leave); the better sizing is kept. Sets each
     sized entry's ``size_drop`` and status, and, given ``baseline_span`` (the
@@ -317,7 +312,7 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
             if before_polish:
                 starts.append(("unpolished",
                                *cand.attach(unpolished, 0.25 * strength, probe)))
-        held = size_best(problem, cand.name, starts)
+        held = size_best(problem, cand.name, starts, max_steps=max_steps)
         if held is None:
             continue
         res.size_drop, res.size_converged = rss - held.cost, held.converged
@@ -325,7 +320,7 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
             # The round starts at an optimum, where the residual is (nearly) orthogonal
             # to the span: its projected cost is ``rss``, the reference of both drops.
             free = size_with_baseline_free(problem, cand.name, held.program, held.theta,
-                                           baseline_span)
+                                           baseline_span, max_steps=max_steps)
             record_free_sizing(res, free, rss)
             if free_sizings is not None:
                 free_sizings[res.name] = free

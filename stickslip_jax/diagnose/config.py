@@ -1,0 +1,67 @@
+"""Everything a diagnosis is run with, in one object: :class:`DiagnoseConfig`.
+
+:class:`~.policy.Policy` holds the thresholds that decide what is sized, refitted and
+named; this holds the policy and the work each phase may do: rounds, refits per round,
+Levenberg-Marquardt step caps of each kind of fit, the counted work budget, and the
+residual-peak search the probes start from. Every phase reads it; no module constant
+decides. :func:`~stickslip_jax.diagnose.run.diagnose` takes one (``config=``), with any
+field also given as a keyword (``diagnose(recs, init=a, max_steps=15)``), as an
+optimistix solver keeps its settings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from .budget import DEFAULT_WORK_BUDGET
+from .policy import DEFAULT_POLICY, Policy
+
+
+@dataclass(frozen=True)
+class DiagnoseConfig:
+    """How a diagnosis runs. Step caps count Levenberg-Marquardt steps; the work
+    budget counts sample-evaluations (:mod:`.budget`), never seconds."""
+
+    policy: Policy = DEFAULT_POLICY
+    """The decision thresholds (:class:`~.policy.Policy`)."""
+    max_rounds: int = 3
+    """Entries accepted at most (one per round)."""
+    top: int = 3
+    """Entries refitted per round at most."""
+    max_steps: int = 25
+    """Steps per refit stage at most; the baseline's polish takes three times this."""
+    size_at_most: int | None = None
+    """Entries sized per round; None: the policy's :attr:`~.Policy.size_at_most`."""
+    fallback: bool = True
+    """Fit the learned force correction when no entry explains the residual."""
+    work_budget: float | None = DEFAULT_WORK_BUDGET
+    """Counted work [sample-evaluations] past which optional work is skipped and said
+    (None or 0: no limit)."""
+    identify_max_steps: int = 60
+    """Steps per identification step at most: the baseline's identification and each
+    re-identification with an entry attached (as ``stickslip identify``'s default)."""
+    size_steps: int = 15
+    """Steps of a sizing at most (an entry's 1-3 parameters, the baseline held or free
+    to first order: :mod:`.sizing`)."""
+    carry_on_steps: int = 30
+    """Steps at most by which a free sizing that stopped short of its optimum is
+    carried on before it bounds a fallback refit (:func:`~.sizing.carry_on_free_sizing`)."""
+    peak_band_Hz: tuple[float, float] = (300.0, 10_000.0)
+    """Where residual peaks are sought [Hz] (:func:`~.locate.residual_peaks`): above the
+    drives' lowest harmonics, below the sample rate's reach."""
+    n_peaks: int = 2
+    """Residual peaks at most handed to the probes (a structural mode's seeds)."""
+
+    def replace(self, **changes) -> DiagnoseConfig:
+        """This configuration with ``changes`` (field names; TypeError on another)."""
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def sized_per_round(self) -> int:
+        """Entries sized per round: :attr:`size_at_most`, else the policy's."""
+        return self.policy.size_at_most if self.size_at_most is None else self.size_at_most
+
+
+DEFAULT_CONFIG = DiagnoseConfig()
+"""The default :class:`DiagnoseConfig`."""
