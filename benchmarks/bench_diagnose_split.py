@@ -47,7 +47,8 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
-from stickslip_jax.diagnose import NAMES, Verdict  # noqa: E402
+from stickslip_jax.diagnose import NAMES, DiagnoseConfig, Verdict  # noqa: E402
+from stickslip_jax.diagnose.passes import PASS_NAMES  # noqa: E402
 from stickslip_jax.testing import random_sets as rs  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
@@ -88,14 +89,16 @@ def code_version() -> str:
     return head + ("+dirty" if dirty else "")
 
 
-def run_one(spec: rs.SetSpec, reduced: bool) -> dict:
-    """Simulate set ``spec``, diagnose it, and the row of the JSON."""
+def run_one(spec: rs.SetSpec, reduced: bool, without: tuple[str, ...] = ()) -> dict:
+    """Simulate set ``spec``, diagnose it (without the refit passes ``without``: an
+    ablation), and the row of the JSON."""
     drives = protocol(reduced)
     t0 = time.perf_counter()
     recs = rs.make_recordings(spec, drives)
     size = rs.effect_size(spec, drives, beyond_baseline=True)
     simulate_s = time.perf_counter() - t0
-    row = run_set(spec.name, from_profile=True, recs=recs,
+    config = DiagnoseConfig().without(*without)
+    row = run_set(spec.name, from_profile=True, recs=recs, config=config,
                   **({"max_rounds": 3} | (REDUCED_SETTINGS if reduced else {})))
     row.update(
         index=spec.index, hidden=spec.effect, form=spec.form,
@@ -373,7 +376,12 @@ def main() -> None:
     ap.add_argument("--scale-strength", type=float, default=1.0, metavar="F",
                     help="development analogues: each drawn set's effect strength times F "
                          "(its form, truth, noise and recordings' seed as drawn); dev only")
+    ap.add_argument("--without", default="", metavar="PASS[,PASS]",
+                    help="an ablation: leave these refit passes out "
+                         f"({', '.join(PASS_NAMES)}); rows say which pass refitted each "
+                         "entry (candidates_by_round's refit_pass)")
     args = ap.parse_args()
+    without = tuple(p for p in args.without.split(",") if p)
     if args.scale_strength != 1.0 and (args.split != "dev" or not args.scale_strength > 0):
         sys.exit("--scale-strength takes a positive factor on the dev split only: the "
                  "frozen test split is reported as drawn")
@@ -382,6 +390,8 @@ def main() -> None:
     meta = {"split": args.split, "seed": seed, "reduced": args.reduced}
     if args.scale_strength != 1.0:  # (absent otherwise: earlier files stay resumable)
         meta["strength_scale"] = args.scale_strength
+    if without:  # (absent otherwise: earlier files stay resumable)
+        meta["without_passes"] = list(without)
     rows: list[dict] = []
     if args.json and args.json.exists():
         old = json.loads(args.json.read_text())
@@ -404,7 +414,7 @@ def main() -> None:
         spec = rs.draw_set(seed, i)  # times 1.0 unless scaled: exactly the drawn set
         spec = dataclasses.replace(spec, strength=spec.strength * args.scale_strength)
         print(f"== {spec.name}", flush=True)
-        rows.append(run_one(spec, args.reduced))
+        rows.append(run_one(spec, args.reduced, without))
         r = rows[-1]
         print(json.dumps({k: r[k] for k in ("set", "hidden", "form", "effect_to_noise",
                                             "verdict", "named", "wall_s", "compile_s",

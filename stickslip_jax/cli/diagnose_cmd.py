@@ -62,6 +62,11 @@ def diagnose_command(
         f"timed: machine speed and load never change the decisions."),
     time_budget: float | None = typer.Option(
         None, "--time-budget", hidden=True, help="Replaced by --work-budget."),
+    without_pass: str = typer.Option(
+        "", "--without-pass", metavar="PASS[,PASS]",
+        help="An ablation: leave these refit passes out of every round (first, "
+             "fallback, rivals, second_look, reidentify); diagnosis.json records the "
+             "passes run and which pass refitted each entry."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
     force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),
 ) -> None:
@@ -70,7 +75,7 @@ def diagnose_command(
     before and after."""
     with reported_errors():
         setup_jax()
-        from ..diagnose import NAMES, diagnose
+        from ..diagnose import NAMES, DiagnoseConfig, diagnose
         from ..diagnose.report import named_line, unexplained_line, write_diagnosis
         from ..model.profiles import lu2015_slc1720
         from ..plausibility import check_actuator_plausible
@@ -91,6 +96,11 @@ def diagnose_command(
         if work_budget < 0:
             raise fail("--work-budget must be 0 (no limit) or a positive multiple of the "
                        "default")
+        try:
+            config = DiagnoseConfig().without(
+                *[p.strip() for p in without_pass.split(",") if p.strip()])
+        except ValueError as err:
+            raise fail(f"--without-pass: {err}") from None
         if skip_identify and params is None:
             raise fail("--skip-identify needs --params (the identified baseline)")
         fixed = parse_fix(fix)
@@ -111,7 +121,8 @@ def diagnose_command(
                 result = diagnose(recordings, init=start, fix=fixed,
                                   identify_steps=() if skip_identify else
                                   ("dynamics", "hysteresis", "friction", "joint"),
-                                  candidates=chosen, max_rounds=max_rounds, top=top,
+                                  candidates=chosen, config=config,
+                                  max_rounds=max_rounds, top=top,
                                   max_steps=max_steps, fallback=not no_fallback,
                                   work_budget=work_budget * DEFAULT_WORK_BUDGET,
                                   echo=lambda s: typer.echo(s, err=True))

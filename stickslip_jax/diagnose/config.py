@@ -52,6 +52,9 @@ class DiagnoseConfig:
     drives' lowest harmonics, below the sample rate's reach."""
     n_peaks: int = 2
     """Residual peaks at most handed to the probes (a structural mode's seeds)."""
+    passes: tuple | None = None
+    """The refit passes each round runs, in order (:mod:`.passes`); None:
+    :data:`~.passes.DEFAULT_PASSES`. Leaving one out is its ablation."""
 
     def replace(self, **changes) -> DiagnoseConfig:
         """This configuration with ``changes`` (field names; TypeError on another)."""
@@ -61,6 +64,28 @@ class DiagnoseConfig:
     def sized_per_round(self) -> int:
         """Entries sized per round: :attr:`size_at_most`, else the policy's."""
         return self.policy.size_at_most if self.size_at_most is None else self.size_at_most
+
+    @property
+    def refit_passes(self) -> tuple:
+        """The refit passes each round runs: :attr:`passes`, else the default ones."""
+        from .passes import DEFAULT_PASSES  # passes -> refit -> config: import at use
+        return DEFAULT_PASSES if self.passes is None else tuple(self.passes)
+
+    def without(self, *names: str) -> DiagnoseConfig:
+        """This configuration without the refit passes ``names`` (an ablation;
+        ValueError on a name it does not run)."""
+        passes = self.refit_passes
+        unknown = set(names) - {p.name for p in passes}
+        if unknown:
+            raise ValueError(f"no refit pass {sorted(unknown)} to leave out; the passes "
+                             f"are {[p.name for p in passes]}")
+        return self.replace(passes=tuple(p for p in passes if p.name not in names))
+
+    def record(self) -> dict:
+        """What ``diagnosis.json`` records of it: every field, the passes by name."""
+        out = dataclasses.asdict(self)
+        out["passes"] = [p.name for p in self.refit_passes]
+        return out
 
 
 DEFAULT_CONFIG = DiagnoseConfig()

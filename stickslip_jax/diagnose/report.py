@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -129,7 +128,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "sizing_baseline_free_move": _finite(c.size_free_reach),
                 "sizing_baseline_free_extrapolated": c.size_free_extrapolated,
                 "sizing_baseline_free_converged": c.size_free_converged,
-                "status": c.status, "refitted": c.refitted,
+                "status": c.status, "refitted": c.refitted, "refit_pass": c.refit_pass,
                 "refit_start": c.refit_start,
                 "refit_start_cost": _finite(c.refit_start_cost),
                 # Whitened costs before and after the refit, and the parameters it
@@ -166,7 +165,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "significance": d.significance,
         "detection_limits": d.detection_limits,
         # Everything it ran with (the policy included): the run can be repeated as is.
-        "config": dataclasses.asdict(d.config) if d.config is not None else None,
+        "config": d.config.record() if d.config is not None else None,
         "criterion": criterion_text(d.policy),
         "score_test": score_test_text(d.policy),
         "candidates_by_round": rounds,

@@ -5,15 +5,18 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..identify.dataset import Dataset
 from ..model.actuator import Actuator
-from .config import DiagnoseConfig
 from .locate import RecordingResidual
 from .policy import DEFAULT_POLICY, Policy
 from .problem import FIRST_ORDER_REACH
+
+if TYPE_CHECKING:  # config -> passes -> refit -> results
+    from .config import DiagnoseConfig
 
 
 class Verdict(enum.StrEnum):
@@ -89,6 +92,9 @@ class CandidateResult:
     """The largest move [θ] of a baseline coordinate that sizing's cost takes for
     granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
     refitted: bool = False
+    refit_pass: str = ""
+    """The refit pass whose refit it holds (:mod:`.passes`: ``first``, ``fallback``,
+    ``rivals``, ``second_look``, ``reidentify``); empty when not refitted."""
     refit_start: str = ""
     """Where its refit started: ``"held sizing"`` or ``"free sizing's point"``
     (:func:`~.refit.refit_start`); empty when not refitted."""

@@ -3,7 +3,7 @@ accepted, and why an entry got no refit.
 
 Each rule reads its thresholds from a :class:`~.policy.Policy` and takes the round's
 :class:`~.results.CandidateResult` list ``ranked`` (sized entries, best rank value
-first). In a round, the diagnosis applies them in this order (:mod:`.run`):
+first). In a round, the refit passes (:mod:`.passes`) apply them in this order:
 
 1. :func:`first_refits`: the leader, and the competitive entries beside it (the leader
    alone when its sizing already removed nearly all of the excess); once one of them

@@ -35,30 +35,21 @@ it decides by is a field of its :class:`~.policy.Policy`:
    residual less its part in the span of ``J_b``: variable projection), which predicts
    what its refit will remove where the baseline absorbed part of the effect while it
    was identified.
-5. **Refit** (:func:`_refit_round`; the rules in :mod:`.rules`, the refits in
-   :mod:`.refit`) the ``top`` by the largest of ``S`` and the sizing's drops, those
-   below the leader only when within :attr:`~.Policy.competitive_share` of it and their
-   sizing did not raise the cost; once one of them would be accepted, the next only when
-   its sizings let its refit rival that acceptance (:func:`~.rules.cannot_rival`: end
-   indistinguishable from it or ahead of it); and, if none of them explains the
-   residual, every other sized entry too (the first-order ranking misleads when the
-   baseline absorbed a large effect; never one whose score and sizing both point the
-   wrong way, nor one whose sizings bound its refit's drop below what any acceptance
-   needs, :func:`~.rules.refit_reach`); each from the current optimum, freeing the
-   entry's parameters and every baseline parameter: from its held sizing, or, where
-   that costs more than the round's optimum, from its free sizing's point when that
-   costs less (:func:`~.refit.refit_start`). When the refits that explain the
-   residual all leave (e/σ)² above :attr:`~.Policy.second_look_chi2`, a seeded entry
-   sized but not refitted gets its refit before one is named (an entry that mimics most
-   of another effect). When the baseline was identified here, its polish divided the
-   identified cost by :attr:`~.Policy.reidentify_polish_gain` or more, and no refit
-   explains the residual, not even a fallback one, the ``top`` entries showing promise
-   are re-identified: the identification steps before the joint one, from ``init`` with
-   the entry attached (at its refitted or sized values) and free in every step, then the
-   refit. The identification can bend the paper's model to mimic a large effect (an 8 µs
-   sensor delay: Mp 12x off) into a valley a refit from the bent baseline does not
-   leave; a re-identification whose staged steps cost less than the identified baseline
-   before its polish is refitted, and replaces the entry's refit when it ends lower.
+5. **Refit** (:func:`_refit_round`): the round's refit passes in order, each one class
+   of :mod:`.passes` with what it is for (the configuration's
+   :attr:`~.config.DiagnoseConfig.passes`; the rules they decide by in :mod:`.rules`,
+   the refits in :mod:`.refit`). Each refit frees the entry's parameters and every
+   baseline parameter, from the round's optimum: from its held sizing, or, where that
+   costs more than the round's optimum, from its free sizing's point when that costs
+   less (:func:`~.refit.refit_start`). The default passes:
+   :class:`~.passes.FirstRefits` (the leader and its competitors, the ``top`` at most;
+   once one would be accepted, only those that could rival it),
+   :class:`~.passes.FallbackRefits` (when none explains: every other sized entry whose
+   sizings leave room for an acceptance), :class:`~.passes.RivalsInReach` (those the
+   fallback set aside that could still tie with an acceptance),
+   :class:`~.passes.SecondLook` (the seeded entries, when the explaining refits stay
+   far from the noise) and :class:`~.passes.Reidentify` (round one of a bent
+   identification: the leading entries attached to the identification itself).
 6. **Accept** (:func:`_accept`) by the Bayesian information criterion of the whitened
    residual (known noise level): ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N
    samples). The best entry is accepted when ``ΔBIC <`` :attr:`~.Policy.bic_min`
@@ -107,37 +98,23 @@ from .config import DEFAULT_CONFIG, DiagnoseConfig
 from .holdout import held_out_cost
 from .learned import fit_learned
 from .locate import analyse_recording, mismatch_entries, residual_peaks
+from .passes import RefitPass, RefitRound, Reidentification
 from .policy import Policy
 from .problem import Problem, baseline_free, recentred
-from .refit import RefitSetup, RoundStart, refit, reidentify
+from .refit import RefitSetup, RoundStart
 from .results import CandidateResult, CandidateStatus, Diagnosis, Verdict
 from .rules import (
     acceptable,
     acceptable_partly,
-    acceptance_reach,
-    any_explains,
-    cannot_rival,
-    cannot_rival_note,
     explains,
-    fallback_refits,
-    far_from_noise,
-    first_refits,
-    identification_bent,
     indistinguishable,
     rank_value,
-    reidentify_order,
-    rival_bar,
-    rivals_in_reach,
-    second_look,
     size_before_polish,
-    unbounded,
     why_not_refitted,
 )
 from .scores import score_candidates
 from .sizing import (
     FreeSizing,
-    HeldSizing,
-    carry_on_free_sizing,
     chosen_for_sizing,
     size_entries,
 )
@@ -283,107 +260,16 @@ def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Signific
                         policy.significance_z)
 
 
-def _sized_entry(res: CandidateResult, pool: Sequence[Candidate],
-                 sized: dict[str, HeldSizing], free_sizings: dict[str, FreeSizing],
-                 ) -> tuple[Candidate, HeldSizing, FreeSizing | None]:
-    """``(entry, its held sizing, its free sizing or None)`` of the sized entry
-    ``res``."""
-    return (next(c for c in pool if c.name == res.name), sized[res.name],
-            free_sizings.get(res.name))
-
-
-def _cannot_rival(setup: RefitSetup, at: RoundStart, res: CandidateResult,
-                  ranked: list[CandidateResult], seeded: set[str],
-                  free_sizings: dict[str, FreeSizing]) -> bool:
-    """Set ``res`` aside, before its first refit, when a refit already done would be
-    accepted and ``res``'s cannot rival it (:func:`~.rules.cannot_rival`; a free sizing
-    that stopped short of its optimum is carried on first, as it bounds nothing, unless
-    its bound where it stopped, :func:`~.rules.reach_so_far`, already reaches the bar). A
-    seeded entry waits for the second look when the acceptance stays far from the
-    noise (:func:`~.rules.second_look`): its refit may find the effect the other
-    mimics."""
-    problem, policy = setup.problem, setup.policy
-    n_obs, tolerance_rss = problem.n_obs, problem.significance.tolerance_rss
-    if not any_explains(ranked, policy) or (
-            res.name in seeded and far_from_noise(ranked, n_obs, policy)):
-        return False
-    bar = rival_bar(ranked, at.rss, tolerance_rss, n_obs, policy)
-    if bar is None:
-        return False
-    if unbounded([res], bar) and res.name in free_sizings:
-        carry_on_free_sizing(problem, res, free_sizings, at.rss,
-                             max_steps=setup.carry_on_steps)
-    if not cannot_rival(res, bar):
-        return False
-    res.set_aside(CandidateStatus.CANNOT_RIVAL, cannot_rival_note(res, bar))
-    problem.say(f"[refit {res.name}] {res.note}")
-    return True
-
-
-def _refit_round(setup: RefitSetup, at: RoundStart, ranked: list[CandidateResult],
-                 pool: Sequence[Candidate], sized: dict, seeded: set[str],
-                 free_sizings: dict[str, FreeSizing], *, top: int,
-                 budgeted_first: bool, reidentification: tuple | None,
-                 timings: dict[str, float]) -> None:
-    """Phase 5: the round's refits, in the order of :mod:`.rules`, from ``at``;
-    ``reidentification`` ``(rss_identified, init, fix, staged)`` when a
-    re-identification may follow (round one of an identified baseline), else None;
-    ``free_sizings`` the entries' sizings with the baseline free
-    (:class:`~.sizing.FreeSizing`).
-    Every sized entry ends refitted or set aside with a note."""
-    policy, n_obs = setup.policy, setup.problem.n_obs
-    # The leader-alone rule needs an excess over the noise to take shares of.
-    above_noise = at.excess if at.excess > policy.excess_min * n_obs else None
-    for res in first_refits(ranked, top, above_noise, policy):
-        if _cannot_rival(setup, at, res, ranked, seeded, free_sizings):
-            continue
-        refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings),
-              budgeted=budgeted_first)
-    if not any_explains(ranked, policy):
-        # The first-order ranking misleads when the baseline absorbed much of a large
-        # effect (a slew-limited drive ranked below a constant load that mimics part
-        # of it): the other sized entries get their refit too, those whose sizings
-        # leave room for an acceptance; then those that could end indistinguishable
-        # from one.
-        tolerance_rss = setup.problem.significance.tolerance_rss
-        reach = acceptance_reach(at.excess, tolerance_rss, policy)
-        if reach > 0:
-            # A free sizing that stopped short of its optimum bounds nothing: carry it
-            # on (a few parameters, the compiled program) so that it can.
-            for res in unbounded(ranked, reach):
-                carry_on_free_sizing(setup.problem, res, free_sizings, at.rss,
-                                     max_steps=setup.carry_on_steps)
-        for res in fallback_refits(ranked, reach):
-            refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings))
-        for res in rivals_in_reach(ranked, at.rss, tolerance_rss, n_obs, policy):
-            refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings))
-    if any_explains(ranked, policy) and far_from_noise(ranked, n_obs, policy):
-        # A refit explains most of the excess but leaves a residual far above the
-        # noise: it may mimic an effect whose own entry was never refitted because its
-        # first-order ranking is unreliable (a seeded entry); give those their refit
-        # before one is named.
-        for res in second_look(ranked, seeded):
-            refit(setup, at, res, *_sized_entry(res, pool, sized, free_sizings))
-    if reidentification is not None:
-        rss_identified, init, fix, staged = reidentification
-        if (staged and not any_explains(ranked, policy)
-                and identification_bent(rss_identified, at.rss, policy)):
-            # The baseline may have bent to mimic the effect (:func:`.refit.reidentify`).
-            t0 = time.perf_counter()
-            # The bar: the identified baseline's cost before its polish (the staged
-            # steps stop short of a joint fit; an 8 µs delay re-identified to 9.7e6
-            # from a start at 1e-10 s and refitted from there to the noise, 2.3e4, the
-            # bent baseline 1.3e7 before its polish and 1.5e6 after it).
-            bar = max(at.rss, rss_identified)
-            for res in reidentify_order(ranked, top):
-                cand, held, _ = _sized_entry(res, pool, sized, free_sizings)
-                reidentify(setup, at, res, cand, held.start, held.specs, bar,
-                           init=init, fix=fix, staged=staged)
-            timings["reidentify_s"] = time.perf_counter() - t0
-    for res in ranked:
+def _refit_round(rnd: RefitRound, passes: Sequence[RefitPass]) -> None:
+    """Phase 5: the round's refit passes in order (:mod:`.passes`), from ``rnd.at``;
+    every sized entry ends refitted or set aside with a note."""
+    for refit_pass in passes:
+        refit_pass.run(rnd)
+    for res in rnd.ranked:
         if res.waiting:
             res.set_aside(CandidateStatus.NOT_REFITTED,
-                          why_not_refitted(res, ranked, top, above_noise, policy))
+                          why_not_refitted(res, rnd.ranked, rnd.top, rnd.excess_or_none,
+                                           rnd.policy))
 
 
 def _accept(refitted: list[CandidateResult], policy: Policy, significance: Significance,
@@ -601,11 +487,11 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         # 5. Refit, from the round's optimum.
         reserve = setup.learned_reserve(act) if fallback and not accepted else 0.0
         at = RoundStart(act, rss, nrmse_now, max(rss - n_obs, 1e-9), reserve, held_out)
-        _refit_round(setup, at, ranked, pool, sized, seeded, free_sizings, top=top,
-                     budgeted_first=rnd > 0,
-                     reidentification=((base.rss_identified, init, fix, staged)
-                                       if rnd == 0 else None),
-                     timings=timings)
+        again = (Reidentification(base.rss_identified, init, fix, tuple(staged))
+                 if rnd == 0 else None)
+        _refit_round(RefitRound(setup, at, ranked, pool, sized, free_sizings, seeded,
+                                top, first_budgeted=rnd > 0, reidentification=again,
+                                timings=timings), config.refit_passes)
         refitted = sorted([r for r in results if r.refitted],
                           key=lambda r: r.criterion_delta)
         rounds.append(results)

@@ -1,0 +1,20 @@
+"""The refit passes of a diagnosis round, each one class (:mod:`.base`), run in the
+order of :data:`DEFAULT_PASSES`."""
+
+from .base import RefitPass, RefitRound, Reidentification
+from .fallback import FallbackRefits
+from .first import FirstRefits
+from .reidentify import Reidentify
+from .rivals import RivalsInReach
+from .second_look import SecondLook
+
+DEFAULT_PASSES: tuple[RefitPass, ...] = (
+    FirstRefits(), FallbackRefits(), RivalsInReach(), SecondLook(), Reidentify())
+"""The passes a round runs, in order."""
+
+PASS_NAMES = {p.name: type(p) for p in DEFAULT_PASSES}
+"""Each default pass's class by its name (ablations: ``--without second_look``)."""
+
+__all__ = ["DEFAULT_PASSES", "PASS_NAMES", "FallbackRefits", "FirstRefits",
+           "RefitPass", "RefitRound", "Reidentification", "Reidentify", "RivalsInReach",
+           "SecondLook"]

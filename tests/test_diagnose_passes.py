@@ -1,0 +1,128 @@
+"""The refit passes (stickslip_jax.diagnose.passes): each refits what its rule takes,
+in order, records itself on the entry, and a configuration without it is its ablation.
+
+The refit itself is replaced by a stand-in that gives each entry a prescribed outcome
+(the refits are tested in test_diagnose_refit.py); what is tested here is which pass
+spends a refit on which entry.
+"""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from stickslip_jax.diagnose import DiagnoseConfig
+from stickslip_jax.diagnose.passes import (
+    DEFAULT_PASSES,
+    PASS_NAMES,
+    FallbackRefits,
+    FirstRefits,
+    RefitPass,
+    RefitRound,
+    SecondLook,
+)
+from stickslip_jax.diagnose.passes import base as passes_base
+from stickslip_jax.diagnose.policy import Policy
+from stickslip_jax.diagnose.refit import RoundStart
+from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
+from stickslip_jax.diagnose.run import _refit_round
+
+N, BASE = 24_000.0, 1.0e6
+
+
+def _round(ranked, outcomes, monkeypatch, *, seeded=()):
+    """A round over ``ranked`` whose refits end as ``outcomes`` (per name: the share of
+    the excess removed, or absent: removes nothing), and the list of refits run."""
+    calls = []
+
+    def fake_refit(setup, at, res, cand, held, free, *, budgeted=True):
+        calls.append(res.name)
+        share = outcomes.get(res.name, 0.0)
+        rss = at.rss - share * at.excess
+        res.refitted, res.status, res.actuator = True, CandidateStatus.REFITTED, object()
+        res.rss_after, res.criterion_delta = rss, rss - at.rss + 3 * np.log(N)
+        res.explained, res.chi2_after = share, rss / N
+        res.material, res.added = share > 0, 3
+
+    monkeypatch.setattr(passes_base, "refit", fake_refit)
+    problem = SimpleNamespace(n_obs=N, say=lambda s: None,
+                              significance=SimpleNamespace(tolerance_rss=0.01 * N))
+    setup = SimpleNamespace(problem=problem, policy=Policy(), carry_on_steps=30)
+    at = RoundStart(act=None, rss=BASE, nrmse=0.0, excess=BASE - N, reserve=0.0)
+    names = [r.name for r in ranked]
+    pool = [SimpleNamespace(name=n) for n in names]
+    rnd = RefitRound(setup, at, ranked, pool, dict.fromkeys(names), {}, set(seeded),
+                     top=3, first_budgeted=False)
+    return rnd, calls
+
+
+def _ranked(*values):
+    return [CandidateResult(name, score=score, size_drop=drop) for name, score, drop in values]
+
+
+def test_the_passes_run_in_order_and_each_refit_names_its_pass(monkeypatch):
+    # The leader explains nothing; the fallback refits the entry below 25 % of it.
+    ranked = _ranked(("external_load", 1e5, 4e5), ("creep", 1e4, 1e4),
+                     ("stribeck", -5e3, -1e3))
+    rnd, calls = _round(ranked, {"creep": 0.9}, monkeypatch)
+    _refit_round(rnd, DEFAULT_PASSES)
+    assert calls == ["external_load", "creep"]
+    by = {r.name: (r.refit_pass, r.status) for r in ranked}
+    assert by["external_load"] == ("first", CandidateStatus.REFITTED)
+    assert by["creep"] == ("fallback", CandidateStatus.REFITTED)
+    # Wrong sign and a sizing that raised the cost: no pass spends a refit on it.
+    assert by["stribeck"] == ("", CandidateStatus.NO_PROMISE)
+
+
+def test_a_configuration_without_a_pass_is_its_ablation(monkeypatch):
+    ranked = _ranked(("external_load", 1e5, 4e5), ("creep", 1e4, 1e4))
+    rnd, calls = _round(ranked, {"creep": 0.9}, monkeypatch)
+    passes = DiagnoseConfig().without("fallback").refit_passes
+    assert [p.name for p in passes] == ["first", "rivals", "second_look", "reidentify"]
+    _refit_round(rnd, passes)
+    assert calls == ["external_load"]
+    assert ranked[1].status is CandidateStatus.NOT_REFITTED and not ranked[1].refit_pass
+    assert "ranked below 25 % of the leader" in ranked[1].note
+
+
+def test_the_second_look_refits_the_seeded_entries_only_far_from_the_noise(monkeypatch):
+    def run(share):
+        ranked = _ranked(("rate_dependent_hysteresis", 5e5, 5e5),
+                         ("drive_bandwidth", 1e4, 1e4))
+        rnd, calls = _round(ranked, {"rate_dependent_hysteresis": share}, monkeypatch,
+                            seeded={"drive_bandwidth"})
+        _refit_round(rnd, (FirstRefits(), SecondLook()))
+        return calls, ranked
+    # Explains 80 % of an excess of 40x the noise: (e/σ)² 8.8 left, above 2.
+    calls, ranked = run(0.8)
+    assert calls == ["rate_dependent_hysteresis", "drive_bandwidth"]
+    assert ranked[1].refit_pass == "second_look"
+    # Leaves (e/σ)² 1.04: the seeded entry is not refitted.
+    calls, _ = run(1.0 - 0.04 * N / (BASE - N))
+    assert calls == ["rate_dependent_hysteresis"]
+
+
+def test_a_new_pass_is_one_class_handed_to_the_configuration(monkeypatch):
+    class EveryWaitingEntry(RefitPass):
+        """Refit everything still waiting (a test's pass)."""
+
+        name = "every"
+
+        def run(self, rnd):
+            rnd.refit_all([r for r in rnd.ranked if r.waiting], self)
+
+    ranked = _ranked(("external_load", 1e5, 4e5), ("creep", 1e4, 1e4))
+    rnd, calls = _round(ranked, {"external_load": 0.9}, monkeypatch)
+    config = DiagnoseConfig(passes=(FirstRefits(), EveryWaitingEntry()))
+    assert config.record()["passes"] == ["first", "every"]
+    _refit_round(rnd, config.refit_passes)
+    assert calls == ["external_load", "creep"]
+    assert [r.refit_pass for r in ranked] == ["first", "every"]
+
+
+def test_the_default_passes_are_named_and_an_unknown_one_is_refused():
+    assert list(PASS_NAMES) == ["first", "fallback", "rivals", "second_look", "reidentify"]
+    assert DiagnoseConfig().record()["passes"] == list(PASS_NAMES)
+    assert isinstance(DiagnoseConfig().refit_passes[1], FallbackRefits)
+    with pytest.raises(ValueError, match="no refit pass"):
+        DiagnoseConfig().without("seconds_look")
