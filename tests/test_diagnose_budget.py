@@ -187,7 +187,21 @@ def test_a_skip_is_recorded_with_its_reason():
     assert note == (f"skipped: its 1.2e+07 {UNIT} would pass the work budget of 1e+08 "
                     f"(9.5e+07 spent)")
     assert b.record() == {"unit": UNIT, "total": 1e8, "spent": 9.5e7,
-                          "skipped": ["refit stribeck"]}
+                          "baseline_spent": 0.0, "skipped": ["refit stribeck"]}
+
+
+def test_the_baselines_work_is_its_own_and_never_skips_a_refit():
+    """A bent identification that spends ten budgets leaves the refits all of theirs
+    (#63: a drive low-pass's identification spent 1.47e8 of 1e8, and the drive stage's
+    entry was skipped)."""
+    b = Budget(1e8)
+    with b.baseline():
+        b.charge(1.0e9)
+    b.charge(4e7)
+    assert (b.baseline_spent, b.spent) == (1.0e9, 4e7)
+    assert b.allows(6e7) and not b.allows(6.1e7)
+    assert b.record()["baseline_spent"] == 1.0e9
+    assert "beside the baseline's 1e+09" in b.progress()
 
 
 def _scripted_run(budget: Budget) -> list[str]:
@@ -195,8 +209,9 @@ def _scripted_run(budget: Budget) -> list[str]:
     (a drive-stage entry among them) asked for with the learned correction's reserve;
     a refit that runs is charged at the steps it took. Returns the decisions."""
     n, k = PROTOCOL_SAMPLES, BASELINE_COLUMNS
-    budget.charge(fit_work(n, k, 99))  # identification from the profile, about
-    budget.charge(fit_work(n, k, 75))  # baseline polish
+    with budget.baseline():  # its own account
+        budget.charge(fit_work(n, k, 99))  # identification from the profile, about
+        budget.charge(fit_work(n, k, 75))  # baseline polish
     budget.charge(evaluation_work(n, k + 20))  # scores
     for _ in range(5):  # sizings: 1-3 parameters, 15 steps
         budget.charge(fit_work(n, 2, 15))
@@ -233,7 +248,7 @@ def test_the_decisions_do_not_depend_on_the_clock(monkeypatch):
             return t0 + rate * (real() - t0) + (1e4 * calls[0] if jumps else 0.0)
         monkeypatch.setattr(time, "perf_counter", clock)
         monkeypatch.setattr(budget_mod.time, "perf_counter", clock)
-        b = Budget(DEFAULT_WORK_BUDGET)
+        b = Budget(DEFAULT_WORK_BUDGET / 2)
         decisions = _scripted_run(b)
         record = b.record()
         return decisions, record

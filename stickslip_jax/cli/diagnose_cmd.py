@@ -58,7 +58,8 @@ def diagnose_command(
         f"default ({DEFAULT_WORK_BUDGET:.0e} {UNIT} of counted solver work; 17-recording "
         f"sets that refit several entries spent a quarter to a half of it, 8-22 minutes "
         f"on a busy 2-core CPU): optional refits whose counted work "
-        f"would pass it are skipped, and the notes say which; 0: no limit. Counted, not "
+        f"would pass it are skipped, and the notes say which (the baseline's own work "
+        f"is counted apart, never against it); 0: no limit. Counted, not "
         f"timed: machine speed and load never change the decisions."),
     time_budget: float | None = typer.Option(
         None, "--time-budget", hidden=True, help="Replaced by --work-budget."),

@@ -141,6 +141,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "removed_nm": _finite(c.removed_nm),
                 "held_out_cost_by_regime": c.held_out,
                 "predicts_regimes_left_out": c.predicts, "material": c.material,
+                "adequate": c.adequate, "chi2_after": _finite(c.chi2_after),
                 "implausible": c.implausible,
                 "nrmse_after_percent": _percent(c.nrmse_after), "accepted": c.accepted,
                 "partial": c.partial,

@@ -70,10 +70,11 @@ it decides by is a field of its :class:`~.policy.Policy`:
 A work budget (:mod:`.budget`, ``work_budget``, in sample-evaluations: counted solver
 work, never seconds, so that machine speed and load cannot change a decision) bounds
 the run: the baseline, the scores, the sizings, round one's first refits and the
-learned correction always run, and their work is charged; fallback refits, second
-looks, re-identifications and later rounds are skipped when their estimated work
-would pass it (work is kept for the learned correction while nothing is accepted),
-and the entries' notes and the diagnosis's notes say so.
+learned correction always run, and their work is charged (the baseline's on an account
+of its own, never against the budget: a bent identification cannot spend the refits'
+work); fallback refits, second looks, re-identifications and later rounds are skipped
+when their estimated work would pass it (work is kept for the learned correction while
+nothing is accepted), and the entries' notes and the diagnosis's notes say so.
 """
 
 from __future__ import annotations
@@ -404,9 +405,10 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
 
     # 1. Baseline.
     t0 = time.perf_counter()
-    base = _baseline(problem, init, identify_steps, config, notes)
+    with budget.baseline():  # its own account: never what skips an entry's refit
+        base = _baseline(problem, init, identify_steps, config, notes)
+        significance = _significance(problem, base, policy)
     chi2_0 = base.rss / n_obs
-    significance = _significance(problem, base, policy)
     problem.significance = significance
     timings["baseline_s"] = time.perf_counter() - t0
     baseline_adequate = significance.adequate(

@@ -1,0 +1,246 @@
+"""Does each refit pass and each tuned threshold of the diagnosis earn its place (#66)?
+
+Reads the rows of ``bench_diagnose_split.py`` runs of the development split (never
+the frozen test split: that would be tuning on it) and answers from what each row
+recorded (every entry's score, sizings, refit, status and the pass that refitted it):
+
+- **Passes**: a pass switched off changes a set's answer only through its refits: one
+  accepted (in any round) or named indistinguishable from the accepted one, or the
+  work it spent when the set's work budget skipped something. Per pass: the sets it
+  refitted on, those where it was *decisive* (one of its refits accepted or a named
+  rival) and those budget-bound; elsewhere switching it off changes nothing (the
+  diagnosis is deterministic and the passes before it do not read it). ``--rerun``
+  diagnoses the decisive and budget-bound sets again without the pass and reports
+  what they name then.
+- **Thresholds**: each :class:`~stickslip_jax.diagnose.Policy` field moved by a
+  factor of two each way, the decisions it gates replayed on the recorded numbers of
+  every round (which entries are sized, which refitted first, which accepted and
+  whether partly, whether the second look opens). A threshold under which no gate
+  flips on any set changes nothing there; where one flips, the set is listed (the
+  decisions after the flip are not replayed: a rerun says them). Not replayable from
+  the records: ``significance_z`` (it sets the tolerance that every cost is measured
+  against), ``reidentify_polish_gain`` (the polish gain is not in the rows) and
+  ``learned_t_min`` (the learned correction's features).
+
+    .venv/bin/python benchmarks/bench_ablation.py out/abl/dev_a.json out/abl/dev_b.json \\
+        --json benchmarks/results/ablation_dev.json [--rerun]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import stickslip_jax as ss  # noqa: E402
+from stickslip_jax.diagnose import CATALOGUE, Policy  # noqa: E402
+from stickslip_jax.diagnose.passes import PASS_NAMES  # noqa: E402
+from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus  # noqa: E402
+from stickslip_jax.diagnose.rules import (  # noqa: E402
+    acceptable,
+    acceptable_partly,
+    any_explains,
+    explains,
+    far_from_noise,
+    first_refits,
+    rank_value,
+)
+from stickslip_jax.diagnose.sizing import chosen_for_sizing  # noqa: E402
+
+UNSIZED = {CandidateStatus.SCORED.value, CandidateStatus.NOT_SIZED.value}
+NOT_REPLAYED = ("significance_z", "reidentify_polish_gain", "learned_t_min")
+TOP = 3  # diagnose()'s default refits per round
+SEEDED = {c.name for c in CATALOGUE if c.seeds(ss.lu2015_slc1720())}
+"""Entries with seeds on the split's start (the profile)."""
+
+
+def _number(x) -> float:
+    return math.nan if x is None else float(x)
+
+
+def entry(c: dict) -> CandidateResult:
+    """One recorded entry (``candidates_by_round``'s dict) as the rules read it."""
+    drop_free = c.get("sizing_drop_baseline_free")
+    return CandidateResult(
+        c["name"], score=float(c["score_statistic"]), size_drop=float(c["sizing_drop"]),
+        size_converged=bool(c.get("sizing_converged", True)),
+        size_drop_free=-math.inf if drop_free is None else float(drop_free),
+        size_free_converged=bool(c.get("sizing_baseline_free_converged", False)),
+        size_free_reach=_number(c.get("sizing_baseline_free_move")),
+        refitted=bool(c["refitted"]), rss_after=_number(c.get("rss_after")),
+        criterion_delta=_number(c.get("criterion_delta")), added=c.get("added_parameters", 0),
+        explained=_number(c.get("explained_share_of_excess")),
+        chi2_after=_number(c.get("chi2_after")), adequate=bool(c.get("adequate", False)),
+        material=bool(c.get("material", False)),
+        predicts=bool(c.get("predicts_regimes_left_out", True)),
+        implausible=c.get("implausible", ""), status=CandidateStatus(c["status"]))
+
+
+def samples(row: dict) -> float | None:
+    """``N``, the samples of the whitened cost: a refit's cost before over the row's
+    (e/σ)² per sample of the baseline (None when nothing was refitted)."""
+    rss = next((c["rss_before"] for c in row["candidates_by_round"][0]
+                if c.get("rss_before") is not None), None)
+    return None if rss is None or not row.get("chi2_before") else rss / row["chi2_before"]
+
+
+def accepted_in(refitted: list[CandidateResult], policy: Policy) -> tuple[str, bool] | None:
+    """``(name, partial)`` that the acceptance (:func:`~stickslip_jax.diagnose.run.
+    _accept`) takes among ``refitted``, None when none."""
+    if not refitted:
+        return None
+    refitted = sorted(refitted, key=lambda r: r.criterion_delta)
+    best = next((r for r in refitted if explains(r, policy)), refitted[0])
+    if acceptable(best, policy):
+        return best.name, False
+    partly = next((r for r in refitted if acceptable_partly(r, policy)), None)
+    return None if partly is None else (partly.name, True)
+
+
+def gates(row: dict, policy: Policy) -> dict[str, list]:
+    """Per gate, its decision in each recorded round under ``policy``."""
+    n_obs = samples(row)
+    out = {"sized": [], "first": [], "accepted": [], "second_look": []}
+    if n_obs is None:
+        return out
+    rss = None  # the round's start: round one's from its refits, later the acceptance's
+    for record in row["candidates_by_round"]:
+        results = [entry(c) for c in record]
+        refitted = [r for r in results if r.refitted]
+        start = next((c["rss_before"] for c in record if c.get("rss_before") is not None),
+                     rss)
+        excess = None if start is None else start - n_obs
+        chosen = chosen_for_sizing([CandidateResult(r.name, score=r.score) for r in results],
+                                   SEEDED, policy.size_at_most,
+                                   excess if out["accepted"] else None, lambda s: None,
+                                   policy)
+        out["sized"].append(sorted(r.name for r in chosen if abs(r.score) >= policy.score_min))
+        ranked = sorted([r for r in results if r.status.value not in UNSIZED],
+                        key=lambda r: -rank_value(r))
+        above = excess if excess is not None and excess > policy.excess_min * n_obs else None
+        out["first"].append(sorted(r.name for r in first_refits(ranked, TOP, above, policy)))
+        out["accepted"].append(accepted_in(refitted, policy))
+        out["second_look"].append(any_explains(refitted, policy)
+                                  and far_from_noise(refitted, n_obs, policy))
+        best = next((r for r in refitted if r.name == (out["accepted"][-1] or ("",))[0]),
+                    None)
+        rss = None if best is None else best.rss_after
+    return out
+
+
+def moved(policy: Policy, name: str, factor: float) -> Policy:
+    value = getattr(policy, name) * factor
+    return dataclasses.replace(policy, **{name: int(round(value)) if name == "size_at_most"
+                                          else value})
+
+
+def threshold_table(rows: list[dict]) -> list[dict]:
+    """Per replayable Policy field and factor: the sets where a gate flips."""
+    default = Policy()
+    base = {row["set"]: gates(row, default) for row in rows}
+    table = []
+    for field in dataclasses.fields(Policy):
+        if field.name in NOT_REPLAYED:
+            continue
+        line = {"field": field.name, "default": getattr(default, field.name)}
+        for factor in (0.5, 2.0):
+            policy = moved(default, field.name, factor)
+            flips = {}
+            for row in rows:
+                now = gates(row, policy)
+                changed = [g for g in now if now[g] != base[row["set"]][g]]
+                if changed:
+                    flips[row["set"]] = changed
+            line[f"x{factor:g}"] = {"value": getattr(policy, field.name), "flips": flips}
+        table.append(line)
+    return table
+
+
+def pass_table(rows: list[dict]) -> list[dict]:
+    """Per refit pass: the sets it refitted on, where it was decisive, budget-bound."""
+    table = []
+    for name in PASS_NAMES:
+        used, decisive, bound = [], [], []
+        for row in rows:
+            mine = [c for rnd in row["candidates_by_round"] for c in rnd
+                    if c.get("refit_pass") == name]
+            if not mine:
+                continue
+            used.append(row["set"])
+            rivals = set(row.get("indistinguishable_from") or [])
+            if any(c["accepted"] or c["name"] in rivals for c in mine):
+                decisive.append(row["set"])
+            elif (row.get("work_budget") or {}).get("skipped"):
+                bound.append(row["set"])
+        table.append({"pass": name, "refitted_on": used, "decisive_on": decisive,
+                      "budget_bound_on": bound})
+    return table
+
+
+def rerun(rows: list[dict], passes: list[dict]) -> list[dict]:
+    """The decisive and budget-bound sets diagnosed again without each pass."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_diagnose_split import run_one  # noqa: PLC0415 (heavy; only here)
+
+    from stickslip_jax.testing import random_sets as rs  # noqa: PLC0415
+
+    index = {row["set"]: row for row in rows}
+    out = []
+    for p in passes:
+        for name in p["decisive_on"] + p["budget_bound_on"]:
+            row = index[name]
+            spec = rs.draw_set(rs.DEV_SEED, row["index"])
+            print(f"== {name} without {p['pass']}", flush=True)
+            again = run_one(spec, False, (p["pass"],))
+            out.append({"pass": p["pass"], "set": name, "hidden": row["hidden"],
+                        "named_with": row["named"], "verdict_with": row["verdict"],
+                        "named_without": again["named"], "verdict_without": again["verdict"],
+                        "wall_s_with": row["wall_s"], "wall_s_without": again["wall_s"]})
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("json", nargs="+", type=Path, help="bench_diagnose_split.py rows (dev)")
+    ap.add_argument("--json", dest="out", type=Path, default=None)
+    ap.add_argument("--rerun", action="store_true",
+                    help="diagnose each pass's decisive and budget-bound sets without it")
+    args = ap.parse_args()
+    rows = []
+    for path in args.json:
+        data = json.loads(path.read_text())
+        if data.get("split") != "dev" or data.get("without_passes"):
+            sys.exit(f"{path}: rows of the development split with every pass, please")
+        rows += [r for r in data["rows"] if r.get("candidates_by_round")]
+    passes, thresholds = pass_table(rows), threshold_table(rows)
+    print(f"{len(rows)} development sets\n\n| pass | refitted on | decisive on | "
+          f"budget-bound on |\n|---|---|---|---|")
+    for p in passes:
+        print(f"| {p['pass']} | {len(p['refitted_on'])} | "
+              f"{', '.join(p['decisive_on']) or '-'} | {', '.join(p['budget_bound_on']) or '-'} |")
+    print("\n| threshold | default | x0.5: sets whose gates flip | x2: sets whose gates flip |"
+          "\n|---|---|---|---|")
+    for t in thresholds:
+        cells = [", ".join(f"{s} ({'/'.join(g)})" for s, g in t[k]["flips"].items()) or "none"
+                 for k in ("x0.5", "x2")]
+        print(f"| {t['field']} | {t['default']:g} | {cells[0]} | {cells[1]} |")
+    print(f"\nnot replayed (need reruns): {', '.join(NOT_REPLAYED)}")
+    reruns = rerun(rows, passes) if args.rerun else []
+    for r in reruns:
+        print(f"{r['set']} without {r['pass']}: {r['named_with'] or r['verdict_with']} -> "
+              f"{r['named_without'] or r['verdict_without']}")
+    if args.out:
+        args.out.write_text(json.dumps({"sets": [r["set"] for r in rows], "passes": passes,
+                                        "thresholds": thresholds, "reruns": reruns},
+                                       indent=1, default=str))
+
+
+if __name__ == "__main__":
+    main()
