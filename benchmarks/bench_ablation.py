@@ -170,7 +170,8 @@ def pass_table(rows: list[dict]) -> list[dict]:
         used, decisive, bound = [], [], []
         for row in rows:
             mine = [c for rnd in row["candidates_by_round"] for c in rnd
-                    if c.get("refit_pass") == name]
+                    if c.get("refit_pass") == name
+                    or (name == "carry_on" and c.get("carried_on"))]
             if not mine:
                 continue
             used.append(row["set"])

@@ -140,6 +140,7 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
         # Each round's entries (scores, sizings, refits, status) and the counted work:
         # enough to replay a change of the refit rules on this set offline.
         "candidates_by_round": diagnosis_dict(d)["candidates_by_round"],
+        "passes": d.config.record()["passes"] if d.config is not None else None,
         "work_budget": d.work,
     }
 

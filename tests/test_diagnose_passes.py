@@ -15,6 +15,7 @@ from stickslip_jax.diagnose import DiagnoseConfig
 from stickslip_jax.diagnose.passes import (
     DEFAULT_PASSES,
     PASS_NAMES,
+    CarryOnDeciding,
     FallbackRefits,
     FirstRefits,
     RefitPass,
@@ -22,6 +23,7 @@ from stickslip_jax.diagnose.passes import (
     SecondLook,
 )
 from stickslip_jax.diagnose.passes import base as passes_base
+from stickslip_jax.diagnose.passes import carry_on as passes_carry_on
 from stickslip_jax.diagnose.policy import Policy
 from stickslip_jax.diagnose.refit import RoundStart
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
@@ -43,6 +45,7 @@ def _round(ranked, outcomes, monkeypatch, *, seeded=()):
         res.rss_after, res.criterion_delta = rss, rss - at.rss + 3 * np.log(N)
         res.explained, res.chi2_after = share, rss / N
         res.material, res.added = share > 0, 3
+        res.refit_converged = outcomes.get("converged", True)
 
     monkeypatch.setattr(passes_base, "refit", fake_refit)
     problem = SimpleNamespace(n_obs=N, say=lambda s: None,
@@ -51,7 +54,8 @@ def _round(ranked, outcomes, monkeypatch, *, seeded=()):
     at = RoundStart(act=None, rss=BASE, nrmse=0.0, excess=BASE - N, reserve=0.0)
     names = [r.name for r in ranked]
     pool = [SimpleNamespace(name=n) for n in names]
-    rnd = RefitRound(setup, at, ranked, pool, dict.fromkeys(names), {}, set(seeded),
+    held = {n: SimpleNamespace(specs={}) for n in names}
+    rnd = RefitRound(setup, at, ranked, pool, held, {}, set(seeded),
                      top=3, first_budgeted=False)
     return rnd, calls
 
@@ -78,7 +82,8 @@ def test_a_configuration_without_a_pass_is_its_ablation(monkeypatch):
     ranked = _ranked(("external_load", 1e5, 4e5), ("creep", 1e4, 1e4))
     rnd, calls = _round(ranked, {"creep": 0.9}, monkeypatch)
     passes = DiagnoseConfig().without("fallback").refit_passes
-    assert [p.name for p in passes] == ["first", "rivals", "second_look", "reidentify"]
+    assert [p.name for p in passes] == ["first", "rivals", "second_look", "reidentify",
+                                        "carry_on"]
     _refit_round(rnd, passes)
     assert calls == ["external_load"]
     assert ranked[1].status is CandidateStatus.NOT_REFITTED and not ranked[1].refit_pass
@@ -121,8 +126,30 @@ def test_a_new_pass_is_one_class_handed_to_the_configuration(monkeypatch):
 
 
 def test_the_default_passes_are_named_and_an_unknown_one_is_refused():
-    assert list(PASS_NAMES) == ["first", "fallback", "rivals", "second_look", "reidentify"]
+    assert list(PASS_NAMES) == ["first", "fallback", "rivals", "second_look", "reidentify",
+                                "carry_on"]
     assert DiagnoseConfig().record()["passes"] == list(PASS_NAMES)
     assert isinstance(DiagnoseConfig().refit_passes[1], FallbackRefits)
     with pytest.raises(ValueError, match="no refit pass"):
         DiagnoseConfig().without("seconds_look")
+
+
+def test_the_deciding_refits_stopped_at_their_cap_are_carried_on(monkeypatch):
+    """The top refits by ΔBIC that stopped at their step cap, plausible ones only."""
+    ranked = _ranked(("stribeck", 3e5, 3e5), ("external_load", 2e5, 2e5),
+                     ("creep", 1e5, 1e5), ("sensor_delay", 9e4, 9e4))
+    rnd, calls = _round(ranked, {"stribeck": 0.7, "external_load": 0.6, "creep": 0.5,
+                                 "sensor_delay": 0.4, "converged": False}, monkeypatch)
+    rnd.top = 4
+    carried = []
+    monkeypatch.setattr(passes_carry_on, "carry_on_refit",
+                        lambda setup, at, res, cand, specs: carried.append(res.name))
+    FirstRefits().run(rnd)
+    assert calls == ["stribeck", "external_load", "creep", "sensor_delay"]
+    ranked[1].implausible = "a load of 3 N"
+    ranked[2].refit_converged = True
+    rnd.top = 3
+    CarryOnDeciding().run(rnd)
+    # By ΔBIC: stribeck, external_load (implausible), creep (converged), sensor_delay
+    # (fourth: beyond the top 3).
+    assert carried == ["stribeck"]

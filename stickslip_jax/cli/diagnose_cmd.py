@@ -66,7 +66,7 @@ def diagnose_command(
     without_pass: str = typer.Option(
         "", "--without-pass", metavar="PASS[,PASS]",
         help="An ablation: leave these refit passes out of every round (first, "
-             "fallback, rivals, second_look, reidentify); diagnosis.json records the "
+             "fallback, rivals, second_look, reidentify, carry_on); diagnosis.json records the "
              "passes run and which pass refitted each entry."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
     force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),

@@ -15,6 +15,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from .budget import DEFAULT_WORK_BUDGET
+from .locate import PEAK_MIN_LEVEL, PEAK_OCTAVES
 from .policy import DEFAULT_POLICY, Policy
 
 
@@ -52,6 +53,11 @@ class DiagnoseConfig:
     drives' lowest harmonics, below the sample rate's reach."""
     n_peaks: int = 2
     """Residual peaks at most handed to the probes (a structural mode's seeds)."""
+    peak_min_level: float = PEAK_MIN_LEVEL
+    """The least mean residual PSD over the noise level at a residual peak [-]."""
+    peak_octaves: float = PEAK_OCTAVES
+    """How far apart residual peaks lie at least, and how far either side of a drive
+    harmonic its envelope is taken [octaves] (:func:`~.locate.harmonic_prominence`)."""
     passes: tuple | None = None
     """The refit passes each round runs, in order (:mod:`.passes`); None:
     :data:`~.passes.DEFAULT_PASSES`. Leaving one out is its ablation."""

@@ -188,6 +188,12 @@ def mismatch_entries(analyses: list[RecordingResidual]) -> list[dict]:
 
 
 
+PEAK_MIN_LEVEL = 5.0
+"""The default least mean level of the residual PSD over its noise level (1 for white
+noise) at a residual peak (:func:`residual_peaks`): a factor 5, which an average of
+the 17 recordings' periodograms of pure noise (each bin χ²(2)/2: mean 1, standard
+deviation 1) reaches at some 16 of its standard errors above its mean."""
+
 PEAK_OCTAVES = 0.5
 """Half an octave: how far apart two residual peaks must be (:func:`residual_peaks`),
 and how far either side of a drive harmonic its envelope's harmonics lie
@@ -207,13 +213,14 @@ def harmonic_bins(f: np.ndarray, drive_Hz: float) -> tuple[np.ndarray, list[np.n
 
 
 def harmonic_prominence(f: np.ndarray, level: np.ndarray, drive_Hz: float | None, *,
-                        noise_z: float = SIGNIFICANCE_Z) -> np.ndarray:
+                        noise_z: float = SIGNIFICANCE_Z,
+                        octaves: float = PEAK_OCTAVES) -> np.ndarray:
     """``level`` (a residual PSD over its noise level, 1 for white noise, at the
     frequencies ``f`` [Hz] of one recording) with each harmonic ``k·drive_Hz`` of a
     periodic drive (the bins within one bin of it) counted only by its prominence over
     the harmonics around it: ``1 + max(level − L − z·sqrt(2L), 0)``. ``L``, the
     envelope, is the geometric mean of the median peak of the harmonics below it and of
-    those above it, each side within :data:`PEAK_OCTAVES`; ``z·sqrt(2L)``
+    those above it, each side within ``octaves`` (:data:`PEAK_OCTAVES`); ``z·sqrt(2L)``
     is the noise's scatter of a harmonic at that level: ``z = noise_z`` standard
     deviations of it (``sqrt(2E)`` in noise units at an envelope ``E``, the cross term
     of a harmonic with the noise), the diagnosis's
@@ -238,7 +245,7 @@ def harmonic_prominence(f: np.ndarray, level: np.ndarray, drive_Hz: float | None
         return out
     orders, bins = harmonic_bins(f, drive_Hz)
     peak = np.array([level[b].max() for b in bins])  # (each holds its nearest bin)
-    span = 2.0**PEAK_OCTAVES
+    span = 2.0**octaves
     for k, b in zip(orders, bins, strict=True):
         below = peak[(orders < k) & (orders >= k / span)]
         above = peak[(orders > k) & (orders <= k * span)]
@@ -286,10 +293,11 @@ def level_on_grid(f: np.ndarray, level: np.ndarray, drive_Hz: float | None,
 
 
 def residual_peaks(recs, q_sims, sigmas, *, band=(300.0, 10_000.0), n_peaks: int = 2,
-                   noise_z: float = SIGNIFICANCE_Z):
+                   noise_z: float = SIGNIFICANCE_Z, min_level: float = PEAK_MIN_LEVEL,
+                   octaves: float = PEAK_OCTAVES):
     """Frequencies [Hz] where the residual PSDs, averaged over recordings in units of
     their noise level, peak inside ``band``: candidates for an unmodelled resonance.
-    Peaks are at least a factor 5 over the noise and half an octave apart. A periodic
+    Peaks are at least ``min_level`` over the noise and ``octaves`` apart. A periodic
     drive's harmonics count by their prominence over the neighbouring harmonics
     (:func:`harmonic_prominence`, ``noise_z``), each in the grid cell that holds it
     (:func:`level_on_grid`)."""
@@ -298,15 +306,16 @@ def residual_peaks(recs, q_sims, sigmas, *, band=(300.0, 10_000.0), n_peaks: int
     for rec, q, s in zip(recs, q_sims, sigmas, strict=True):
         f, psd = periodogram_psd(residual_of(rec, q), rec.dt, np)
         periodic = rec.drive.frequency_Hz if rec.drive.waveform != "step" else None
-        level = harmonic_prominence(f, psd / (s**2 * rec.dt), periodic, noise_z=noise_z)
+        level = harmonic_prominence(f, psd / (s**2 * rec.dt), periodic, noise_z=noise_z,
+                                    octaves=octaves)
         total += level_on_grid(f, level, periodic, grid)
     total /= max(len(recs), 1)
     peaks = []
     for i in np.argsort(-total):
-        if total[i] < 5.0 or len(peaks) >= n_peaks:
+        if total[i] < min_level or len(peaks) >= n_peaks:
             break
         if i in (0, grid.size - 1) or total[i] < max(total[i - 1], total[i + 1]):
             continue
-        if all(abs(np.log2(grid[i] / p)) > PEAK_OCTAVES for p in peaks):
+        if all(abs(np.log2(grid[i] / p)) > octaves for p in peaks):
             peaks.append(float(grid[i]))
     return peaks

@@ -98,6 +98,7 @@ def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     rss_new = float(out.cost_end)
     k = sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values())
     res.refitted = True
+    res.refit_converged = bool(out.converged)
     res.status = CandidateStatus.REFITTED
     res.actuator = fitted
     res.params = {n: float(np.asarray(s.getter(fitted))) for n, s in specs.items()}

@@ -129,6 +129,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
                 "sizing_baseline_free_extrapolated": c.size_free_extrapolated,
                 "sizing_baseline_free_converged": c.size_free_converged,
                 "status": c.status, "refitted": c.refitted, "refit_pass": c.refit_pass,
+                "refit_converged": c.refit_converged, "carried_on": c.carried_on,
                 "refit_start": c.refit_start,
                 "refit_start_cost": _finite(c.refit_start_cost),
                 # Whitened costs before and after the refit, and the parameters it

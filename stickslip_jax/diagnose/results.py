@@ -95,6 +95,11 @@ class CandidateResult:
     refit_pass: str = ""
     """The refit pass whose refit it holds (:mod:`.passes`: ``first``, ``fallback``,
     ``rivals``, ``second_look``, ``reidentify``); empty when not refitted."""
+    refit_converged: bool = False
+    """Its refit ended by the Gauss-Newton test, not at its step cap."""
+    carried_on: bool = False
+    """Its refit, stopped at its step cap, was carried on
+    (:class:`~.passes.CarryOnDeciding`)."""
     refit_start: str = ""
     """Where its refit started: ``"held sizing"`` or ``"free sizing's point"``
     (:func:`~.refit.refit_start`); empty when not refitted."""

@@ -198,7 +198,9 @@ def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
     mismatch = mismatch_entries(analyses)
     hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas,
                                         band=config.peak_band_Hz, n_peaks=config.n_peaks,
-                                        noise_z=config.policy.significance_z),
+                                        noise_z=config.policy.significance_z,
+                                        min_level=config.peak_min_level,
+                                        octaves=config.peak_octaves),
              "max_slew_V_s": max(float(np.max(np.abs(np.diff(r.voltage_V)))) / r.dt
                                  for r in data.recordings),
              "sample_interval_s": min(float(r.dt) for r in data.recordings)}

@@ -2,6 +2,7 @@
 order of :data:`DEFAULT_PASSES`."""
 
 from .base import RefitPass, RefitRound, Reidentification
+from .carry_on import CarryOnDeciding
 from .fallback import FallbackRefits
 from .first import FirstRefits
 from .reidentify import Reidentify
@@ -9,12 +10,13 @@ from .rivals import RivalsInReach
 from .second_look import SecondLook
 
 DEFAULT_PASSES: tuple[RefitPass, ...] = (
-    FirstRefits(), FallbackRefits(), RivalsInReach(), SecondLook(), Reidentify())
+    FirstRefits(), FallbackRefits(), RivalsInReach(), SecondLook(), Reidentify(),
+    CarryOnDeciding())
 """The passes a round runs, in order."""
 
 PASS_NAMES = {p.name: type(p) for p in DEFAULT_PASSES}
 """Each default pass's class by its name (ablations: ``--without second_look``)."""
 
-__all__ = ["DEFAULT_PASSES", "PASS_NAMES", "FallbackRefits", "FirstRefits",
+__all__ = ["DEFAULT_PASSES", "PASS_NAMES", "CarryOnDeciding", "FallbackRefits", "FirstRefits",
            "RefitPass", "RefitRound", "Reidentification", "Reidentify", "RivalsInReach",
            "SecondLook"]
