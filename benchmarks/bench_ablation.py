@@ -23,7 +23,8 @@ recorded (every entry's score, sizings, refit, status and the pass that refitted
   ``learned_t_min`` (the learned correction's features).
 
     .venv/bin/python benchmarks/bench_ablation.py out/abl/dev_a.json out/abl/dev_b.json \\
-        --json benchmarks/results/ablation_dev.json [--rerun]
+        --json benchmarks/results/ablation_dev.json \\
+        [--rerun --fields explained_min,second_look_chi2 --reruns-json out/reruns.json --part 0/2]
 """
 
 from __future__ import annotations
@@ -185,26 +186,48 @@ def pass_table(rows: list[dict]) -> list[dict]:
     return table
 
 
-def rerun(rows: list[dict], passes: list[dict]) -> list[dict]:
-    """The decisive and budget-bound sets diagnosed again without each pass."""
+def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
+          fields: list[str], out: Path | None, part: tuple[int, int]) -> list[dict]:
+    """Diagnose again each pass's decisive and budget-bound sets without it, and each
+    set whose gates flip under a threshold of ``fields`` moved; ``part`` ``(k, n)``:
+    the k-th of n interleaved shares of the runs (parallel processes). Appended to
+    ``out`` as each ends; runs already there are skipped (resume)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_diagnose_split import run_one  # noqa: PLC0415 (heavy; only here)
 
+    from stickslip_jax.diagnose import DiagnoseConfig  # noqa: PLC0415
     from stickslip_jax.testing import random_sets as rs  # noqa: PLC0415
 
+    # Not the first refits: without them the fallback refits every sized entry, which
+    # tests the fallback, not whether the first refits earn their place (they are the
+    # core: every name on the split came from one).
+    runs = [(f"without {p['pass']}", name, DiagnoseConfig().without(p["pass"]))
+            for p in passes if p["pass"] != "first"
+            for name in p["decisive_on"] + p["budget_bound_on"]]
+    for t in thresholds:
+        if t["field"] not in fields:
+            continue
+        for factor in ("x0.5", "x2"):
+            value = t[factor]["value"]
+            config = DiagnoseConfig(policy=dataclasses.replace(Policy(), **{t["field"]: value}))
+            runs += [(f"{t['field']} = {value:g}", name, config) for name in t[factor]["flips"]]
+    done = json.loads(out.read_text())["reruns"] if out and out.exists() else []
+    have = {(r["change"], r["set"]) for r in done}
     index = {row["set"]: row for row in rows}
-    out = []
-    for p in passes:
-        for name in p["decisive_on"] + p["budget_bound_on"]:
-            row = index[name]
-            spec = rs.draw_set(rs.DEV_SEED, row["index"])
-            print(f"== {name} without {p['pass']}", flush=True)
-            again = run_one(spec, False, (p["pass"],))
-            out.append({"pass": p["pass"], "set": name, "hidden": row["hidden"],
-                        "named_with": row["named"], "verdict_with": row["verdict"],
-                        "named_without": again["named"], "verdict_without": again["verdict"],
-                        "wall_s_with": row["wall_s"], "wall_s_without": again["wall_s"]})
-    return out
+    k, n = part
+    for change, name, config in runs[k::n]:
+        if (change, name) in have:
+            continue
+        row = index[name]
+        print(f"== {name}, {change}", flush=True)
+        again = run_one(rs.draw_set(rs.DEV_SEED, row["index"]), False, config)
+        done.append({"change": change, "set": name, "hidden": row["hidden"],
+                     "named_with": row["named"], "verdict_with": row["verdict"],
+                     "named_changed": again["named"], "verdict_changed": again["verdict"],
+                     "wall_s_with": row["wall_s"], "wall_s_changed": again["wall_s"]})
+        if out:
+            out.write_text(json.dumps({"reruns": done}, indent=1, default=str))
+    return done
 
 
 def main() -> None:
@@ -212,7 +235,13 @@ def main() -> None:
     ap.add_argument("json", nargs="+", type=Path, help="bench_diagnose_split.py rows (dev)")
     ap.add_argument("--json", dest="out", type=Path, default=None)
     ap.add_argument("--rerun", action="store_true",
-                    help="diagnose each pass's decisive and budget-bound sets without it")
+                    help="diagnose each pass's decisive and budget-bound sets without it, "
+                         "and the sets whose gates flip under --fields moved")
+    ap.add_argument("--fields", default="", help="Policy fields whose flips --rerun runs")
+    ap.add_argument("--reruns-json", type=Path, default=None,
+                    help="where --rerun appends its runs (resumable)")
+    ap.add_argument("--part", default="0/1", metavar="K/N",
+                    help="--rerun's k-th of n interleaved shares (parallel processes)")
     args = ap.parse_args()
     rows = []
     for path in args.json:
@@ -233,10 +262,17 @@ def main() -> None:
                  for k in ("x0.5", "x2")]
         print(f"| {t['field']} | {t['default']:g} | {cells[0]} | {cells[1]} |")
     print(f"\nnot replayed (need reruns): {', '.join(NOT_REPLAYED)}")
-    reruns = rerun(rows, passes) if args.rerun else []
+    k, n = (int(x) for x in args.part.split("/"))
+    if args.rerun:
+        reruns = rerun(rows, passes, thresholds, [f for f in args.fields.split(",") if f],
+                       args.reruns_json, (k, n))
+    elif args.reruns_json and args.reruns_json.exists():  # earlier reruns, reported
+        reruns = json.loads(args.reruns_json.read_text())["reruns"]
+    else:
+        reruns = []
     for r in reruns:
-        print(f"{r['set']} without {r['pass']}: {r['named_with'] or r['verdict_with']} -> "
-              f"{r['named_without'] or r['verdict_without']}")
+        print(f"{r['set']}, {r['change']}: {r['named_with'] or r['verdict_with']} -> "
+              f"{r['named_changed'] or r['verdict_changed']}")
     if args.out:
         args.out.write_text(json.dumps({"sets": [r["set"] for r in rows], "passes": passes,
                                         "thresholds": thresholds, "reruns": reruns},

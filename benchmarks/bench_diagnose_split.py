@@ -89,16 +89,16 @@ def code_version() -> str:
     return head + ("+dirty" if dirty else "")
 
 
-def run_one(spec: rs.SetSpec, reduced: bool, without: tuple[str, ...] = ()) -> dict:
-    """Simulate set ``spec``, diagnose it (without the refit passes ``without``: an
-    ablation), and the row of the JSON."""
+def run_one(spec: rs.SetSpec, reduced: bool, config: DiagnoseConfig | None = None) -> dict:
+    """Simulate set ``spec``, diagnose it as ``config`` says (default: the default
+    configuration; an ablation: without a pass, a threshold moved), and the row of the
+    JSON."""
     drives = protocol(reduced)
     t0 = time.perf_counter()
     recs = rs.make_recordings(spec, drives)
     size = rs.effect_size(spec, drives, beyond_baseline=True)
     simulate_s = time.perf_counter() - t0
-    config = DiagnoseConfig().without(*without)
-    row = run_set(spec.name, from_profile=True, recs=recs, config=config,
+    row = run_set(spec.name, from_profile=True, recs=recs, config=config or DiagnoseConfig(),
                   **({"max_rounds": 3} | (REDUCED_SETTINGS if reduced else {})))
     row.update(
         index=spec.index, hidden=spec.effect, form=spec.form,
@@ -380,8 +380,11 @@ def main() -> None:
                     help="an ablation: leave these refit passes out "
                          f"({', '.join(PASS_NAMES)}); rows say which pass refitted each "
                          "entry (candidates_by_round's refit_pass)")
+    ap.add_argument("--with", dest="with_", default="", metavar="PASS[,PASS]",
+                    help="opt-in refit passes added after the default ones (carry_on)")
     args = ap.parse_args()
     without = tuple(p for p in args.without.split(",") if p)
+    added = tuple(p for p in args.with_.split(",") if p)
     if args.scale_strength != 1.0 and (args.split != "dev" or not args.scale_strength > 0):
         sys.exit("--scale-strength takes a positive factor on the dev split only: the "
                  "frozen test split is reported as drawn")
@@ -392,6 +395,8 @@ def main() -> None:
         meta["strength_scale"] = args.scale_strength
     if without:  # (absent otherwise: earlier files stay resumable)
         meta["without_passes"] = list(without)
+    if added:
+        meta["with_passes"] = list(added)
     rows: list[dict] = []
     if args.json and args.json.exists():
         old = json.loads(args.json.read_text())
@@ -414,7 +419,8 @@ def main() -> None:
         spec = rs.draw_set(seed, i)  # times 1.0 unless scaled: exactly the drawn set
         spec = dataclasses.replace(spec, strength=spec.strength * args.scale_strength)
         print(f"== {spec.name}", flush=True)
-        rows.append(run_one(spec, args.reduced, without))
+        rows.append(run_one(spec, args.reduced,
+                            DiagnoseConfig().without(*without).with_passes(*added)))
         r = rows[-1]
         print(json.dumps({k: r[k] for k in ("set", "hidden", "form", "effect_to_noise",
                                             "verdict", "named", "wall_s", "compile_s",

@@ -82,8 +82,7 @@ def test_a_configuration_without_a_pass_is_its_ablation(monkeypatch):
     ranked = _ranked(("external_load", 1e5, 4e5), ("creep", 1e4, 1e4))
     rnd, calls = _round(ranked, {"creep": 0.9}, monkeypatch)
     passes = DiagnoseConfig().without("fallback").refit_passes
-    assert [p.name for p in passes] == ["first", "rivals", "second_look", "reidentify",
-                                        "carry_on"]
+    assert [p.name for p in passes] == ["first", "rivals", "second_look", "reidentify"]
     _refit_round(rnd, passes)
     assert calls == ["external_load"]
     assert ranked[1].status is CandidateStatus.NOT_REFITTED and not ranked[1].refit_pass
@@ -128,7 +127,12 @@ def test_a_new_pass_is_one_class_handed_to_the_configuration(monkeypatch):
 def test_the_default_passes_are_named_and_an_unknown_one_is_refused():
     assert list(PASS_NAMES) == ["first", "fallback", "rivals", "second_look", "reidentify",
                                 "carry_on"]
-    assert DiagnoseConfig().record()["passes"] == list(PASS_NAMES)
+    assert DiagnoseConfig().record()["passes"] == list(PASS_NAMES)[:5]
+    added = DiagnoseConfig().with_passes("carry_on")
+    assert added.record()["passes"] == list(PASS_NAMES)
+    assert isinstance(added.refit_passes[-1], CarryOnDeciding)
+    with pytest.raises(ValueError, match="no refit pass"):
+        added.with_passes("carry_on")  # runs already
     assert isinstance(DiagnoseConfig().refit_passes[1], FallbackRefits)
     with pytest.raises(ValueError, match="no refit pass"):
         DiagnoseConfig().without("seconds_look")

@@ -66,8 +66,12 @@ def diagnose_command(
     without_pass: str = typer.Option(
         "", "--without-pass", metavar="PASS[,PASS]",
         help="An ablation: leave these refit passes out of every round (first, "
-             "fallback, rivals, second_look, reidentify, carry_on); diagnosis.json records the "
+             "fallback, rivals, second_look, reidentify); diagnosis.json records the "
              "passes run and which pass refitted each entry."),
+    with_pass: str = typer.Option(
+        "", "--with-pass", metavar="PASS[,PASS]",
+        help="Add opt-in refit passes after the default ones: carry_on (the top three "
+             "refits by ΔBIC that stopped at their step cap carried on once more)."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
     force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),
 ) -> None:
@@ -102,6 +106,11 @@ def diagnose_command(
                 *[p.strip() for p in without_pass.split(",") if p.strip()])
         except ValueError as err:
             raise fail(f"--without-pass: {err}") from None
+        try:
+            config = config.with_passes(*[p.strip() for p in with_pass.split(",")
+                                          if p.strip()])
+        except ValueError as err:
+            raise fail(f"--with-pass: {err}") from None
         if skip_identify and params is None:
             raise fail("--skip-identify needs --params (the identified baseline)")
         fixed = parse_fix(fix)

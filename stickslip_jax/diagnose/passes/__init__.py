@@ -10,12 +10,14 @@ from .rivals import RivalsInReach
 from .second_look import SecondLook
 
 DEFAULT_PASSES: tuple[RefitPass, ...] = (
-    FirstRefits(), FallbackRefits(), RivalsInReach(), SecondLook(), Reidentify(),
-    CarryOnDeciding())
+    FirstRefits(), FallbackRefits(), RivalsInReach(), SecondLook(), Reidentify())
 """The passes a round runs, in order."""
 
-PASS_NAMES = {p.name: type(p) for p in DEFAULT_PASSES}
-"""Each default pass's class by its name (ablations: ``--without second_look``)."""
+PASS_NAMES = {p.name: type(p) for p in (*DEFAULT_PASSES, CarryOnDeciding())}
+"""Every pass's class by its name, the default ones first (ablations: ``--without-pass
+second_look``; an opt-in pass: ``--with-pass carry_on``). :class:`CarryOnDeciding` is
+not a default: on 36 development sets it ran on 7 and changed no decision (#66's
+ablation, benchmarks/README.md)."""
 
 __all__ = ["DEFAULT_PASSES", "PASS_NAMES", "CarryOnDeciding", "FallbackRefits", "FirstRefits",
            "RefitPass", "RefitRound", "Reidentification", "Reidentify", "RivalsInReach",
