@@ -21,7 +21,7 @@ EPILOG = """Examples:
 
   stickslip contacts --out out/contacts
 
-  stickslip contacts --params P.json --preloads 0.5,1,2,4 --spread lumped=1
+  stickslip contacts --params out/id/params.json --preloads 0.5,1,2,4 --spread lumped=1
   --spread equal=1,1,1,1,1,1 --spread uneven=6,5,4,2,1,1 --k-load 1e5 --out out/contacts
 
 Three studies after Nguyen et al. 2012 (the second of the two papers the model follows:

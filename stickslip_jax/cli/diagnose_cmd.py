@@ -20,11 +20,12 @@ from .common import (
 
 EPILOG = """Examples:
 
-  stickslip diagnose recordings/ --out out/diag --fix Ms=0.0247
+  stickslip diagnose fixtures/concealed/set_05 --out out/diag --fix Ms=0.0247
 
-  stickslip diagnose runs/ --params out/id/params.json --skip-identify --out out/diag
+  stickslip diagnose fixtures/concealed/set_05 --params out/id/params.json --skip-identify
+  --fix Ms=0.0247 --out out/diag
 
-  stickslip diagnose runs/ --out out/diag --candidates creep,sensor_delay --max-rounds 1
+  stickslip diagnose my_runs/ --out out/diag --candidates creep,sensor_delay --max-rounds 1
 
 Writes diagnosis.json (baseline, mismatch, missing_physics, final, verdict), report.md
 and figures/. Exit codes: 0 done (whatever the verdict); 2 bad input.

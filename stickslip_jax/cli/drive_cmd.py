@@ -22,7 +22,7 @@ EPILOG = """Examples:
 
   stickslip drive --velocity 50um/s
 
-  stickslip drive --params P.json --velocity 0.12mm/s --direction backward
+  stickslip drive --params out/id/params.json --velocity 0.12mm/s --direction backward
   --frequencies 100,200,500,1000 --out choices.json
 
   stickslip drive --velocity -50um/s        (the same as 50um/s --direction backward)

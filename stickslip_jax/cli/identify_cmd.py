@@ -22,9 +22,10 @@ EPILOG = """Examples:
 
   stickslip identify fixtures/identification --out out/id
 
-  stickslip identify runs/*.csv --out out/id --fix Ms=0.0247 --init start.json
+  stickslip identify fixtures/identification/*.csv --out out/id --fix Ms=0.0247
+  --init fixtures/reference/params.json
 
-  stickslip identify runs/ --out out/id --steps dynamics,hysteresis --force
+  stickslip identify my_runs/ --out out/id --steps dynamics,hysteresis --force
 
 Exit codes: 0 converged; 2 bad input; 3 a fit did not converge (the parameters are
 then written as params.unconverged.json, never as params.json; an early step's cap

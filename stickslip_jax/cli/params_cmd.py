@@ -12,7 +12,7 @@ EPILOG = """Examples:
 
   stickslip params --list
 
-  stickslip params --out P.json
+  stickslip params --out out/params.json
 """
 
 

@@ -43,7 +43,8 @@ EPILOG = """Examples:
   stickslip simulate --waveform sawtooth --amplitude 40 --frequency 50
   --direction forward --duration 0.2 --out trace.csv
 
-  stickslip simulate --params P.json --voltage-from REC.csv --out SIM.csv --plot SIM.png
+  stickslip simulate --params fixtures/reference/params.json
+  --voltage-from fixtures/reference/ref_step_50V.csv --out out/sim.csv --plot out/sim.png
 """
 
 

@@ -22,7 +22,7 @@ EPILOG = """Examples:
 
   stickslip sweep --amplitudes 10:80:15 --frequencies 50,100,200,500,1000 --out out/sweep
 
-  stickslip sweep --params P.json --amplitudes 20,40,60 --frequencies 100:1000:10
+  stickslip sweep --params out/id/params.json --amplitudes 20,40,60 --frequencies 100:1000:10
   --directions backward --periods 20 --chunk 64 --out out/sweep --force
 
 Writes DIR/velocity_map.csv (amplitude_V, frequency_Hz, direction, velocity_um_s,
