@@ -308,7 +308,8 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
 
 def plot_residual_map(d: Diagnosis, path):
     """Mean (e/σ)² per recording [-] (the residual's power over the noise's), baseline
-    and final, grouped by regime, on a log axis with the noise level (1) marked."""
+    and final, in recording order with each one's regime under its name, on a log axis
+    with the noise level (1) marked."""
     names = [a.recording for a in d.analyses_baseline]
     x = np.arange(len(names))
     fig, ax = subplots(figsize=(max(6, 0.45 * len(names)), 4.2))
