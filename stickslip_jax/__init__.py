@@ -9,6 +9,7 @@ does both for you)::
     jax.config.update("jax_enable_x64", True)
     import stickslip_jax as ss
     ss.fast_cpu_loops()
+    ss.device_side_gpu_loops()  # on a GPU: loops and branches without the host
     ss.use_compilation_cache()  # optional: a later process reuses the compiled programs
 """
 
@@ -143,7 +144,7 @@ from .sweep.contact_studies import (
     spread_study,
 )
 from .synthetic import DriveSpec, paper_protocol, simulate_set
-from .xla_flags import SMALL_LOOP_BYTES, fast_cpu_loops
+from .xla_flags import SMALL_LOOP_BYTES, device_side_gpu_loops, fast_cpu_loops
 
 __version__ = "0.1.0"
 
@@ -178,7 +179,8 @@ __all__ = [
     "DriveSpec", "paper_protocol", "simulate_set",
     "CEIMElastoPlastic", "ExtraContacts", "multi_contact", "ForceCurve", "StepCurves",
     "force_vs_amplitude", "preload_study", "spread_study", "TiltingHemisphere",
-    "with_hemisphere", "SMALL_LOOP_BYTES", "fast_cpu_loops", "use_compilation_cache",
+    "with_hemisphere", "SMALL_LOOP_BYTES", "fast_cpu_loops", "device_side_gpu_loops",
+    "use_compilation_cache",
     "DEFAULT_ZBA_RATIO", "FRICTION_LAWS", "LawParameter", "friction_law_name",
     "register_friction_law",
 ]

@@ -78,6 +78,16 @@ def test_fast_cpu_loops_sets_the_threshold_in_a_fresh_process():
                    "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=2048")
 
 
+def test_device_side_gpu_loops_adds_both_options_and_keeps_a_users_own():
+    code = ("import os, stickslip_jax as ss; ok = ss.device_side_gpu_loops(); "
+            "print(ok, os.environ['XLA_FLAGS'])")
+    env = {**os.environ, "XLA_FLAGS": "--xla_gpu_graph_min_graph_size=5"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=120, check=True).stdout.strip()
+    assert out == ("True --xla_gpu_graph_min_graph_size=5 --xla_gpu_enable_command_buffer="
+                   "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,CONDITIONAL,WHILE")
+
+
 def test_batching_and_adjoint_defaults_on_a_cpu(monkeypatch):
     # With the default stepping's refinement and event conds, mapping rows wins on a CPU
     # whatever the loop setting (vmap turns every cond into a select), and forward

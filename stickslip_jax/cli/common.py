@@ -23,7 +23,7 @@ from typer.core import TyperGroup
 from ..blas_threads import limit_blas_threads
 from ..compilation_cache import cache_dir_from_env, use_compilation_cache
 from ..io import RecordingErrors
-from ..xla_flags import add_xla_flag, fast_cpu_loops
+from ..xla_flags import add_xla_flag, device_side_gpu_loops, fast_cpu_loops
 
 EXIT_INTERNAL = 1
 EXIT_BAD_INPUT = 2
@@ -55,11 +55,13 @@ def fast_cpu_loops_quietly() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fast_cpu_loops()
+    device_side_gpu_loops()
 
 
 def setup_jax(*, all_cpu_cores: bool = False) -> None:
     """float64, XLA's native compilation of small loops on a CPU
-    (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`), a persistent compilation
+    (:func:`~stickslip_jax.xla_flags.fast_cpu_loops`) and device-side loops on a GPU
+    (:func:`~stickslip_jax.xla_flags.device_side_gpu_loops`), a persistent compilation
     cache, so a second run skips compiling (:mod:`~stickslip_jax.compilation_cache`),
     and BLAS on one thread
     (:mod:`~stickslip_jax.blas_threads`; unless ``OPENBLAS_NUM_THREADS`` says otherwise).
