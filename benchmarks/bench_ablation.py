@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -43,6 +42,7 @@ jax.config.update("jax_enable_x64", True)
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.diagnose import CATALOGUE, Policy  # noqa: E402
 from stickslip_jax.diagnose.passes import PASS_NAMES  # noqa: E402
+from stickslip_jax.diagnose.report import entry_from_record  # noqa: E402
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus  # noqa: E402
 from stickslip_jax.diagnose.rules import (  # noqa: E402
     acceptable,
@@ -60,28 +60,6 @@ NOT_REPLAYED = ("significance_z", "reidentify_polish_gain", "learned_t_min")
 TOP = 3  # diagnose()'s default refits per round
 SEEDED = {c.name for c in CATALOGUE if c.seeds(ss.lu2015_slc1720())}
 """Entries with seeds on the split's start (the profile)."""
-
-
-def _number(x) -> float:
-    return math.nan if x is None else float(x)
-
-
-def entry(c: dict) -> CandidateResult:
-    """One recorded entry (``candidates_by_round``'s dict) as the rules read it."""
-    drop_free = c.get("sizing_drop_baseline_free")
-    return CandidateResult(
-        c["name"], score=float(c["score_statistic"]), size_drop=float(c["sizing_drop"]),
-        size_converged=bool(c.get("sizing_converged", True)),
-        size_drop_free=-math.inf if drop_free is None else float(drop_free),
-        size_free_converged=bool(c.get("sizing_baseline_free_converged", False)),
-        size_free_reach=_number(c.get("sizing_baseline_free_move")),
-        refitted=bool(c["refitted"]), rss_after=_number(c.get("rss_after")),
-        criterion_delta=_number(c.get("criterion_delta")), added=c.get("added_parameters", 0),
-        explained=_number(c.get("explained_share_of_excess")),
-        chi2_after=_number(c.get("chi2_after")), adequate=bool(c.get("adequate", False)),
-        material=bool(c.get("material", False)),
-        predicts=bool(c.get("predicts_regimes_left_out", True)),
-        implausible=c.get("implausible", ""), status=CandidateStatus(c["status"]))
 
 
 def samples(row: dict) -> float | None:
@@ -113,7 +91,7 @@ def gates(row: dict, policy: Policy) -> dict[str, list]:
         return out
     rss = None  # the round's start: round one's from its refits, later the acceptance's
     for record in row["candidates_by_round"]:
-        results = [entry(c) for c in record]
+        results = [entry_from_record(c) for c in record]
         refitted = [r for r in results if r.refitted]
         start = next((c["rss_before"] for c in record if c.get("rss_before") is not None),
                      rss)

@@ -190,6 +190,27 @@ def test_a_skip_is_recorded_with_its_reason():
                           "baseline_spent": 0.0, "skipped": ["refit stribeck"]}
 
 
+def test_refuse_records_a_skip_only_when_the_work_does_not_fit():
+    b = Budget(100.0)
+    b.charge(40.0)
+    assert b.refuse("refit creep", 50.0, reserve=10.0) is None
+    assert b.skipped == []
+    note = b.refuse("refit creep", 50.0, reserve=10.5)
+    assert note.startswith("skipped: its 50 ") and b.skipped == ["refit creep"]
+
+
+def test_notes_join_in_order_and_skip_empty_ones():
+    from stickslip_jax.diagnose.results import CandidateResult
+
+    res = CandidateResult.__new__(CandidateResult)
+    res.note = ""
+    res.add_note("a")
+    res.add_note("b")
+    res.add_note("first", first=True)
+    res.add_note("")
+    assert res.note == "first; a; b"
+
+
 def test_the_baselines_work_is_its_own_and_never_skips_a_refit():
     """A bent identification that spends ten budgets leaves the refits all of theirs
     (#63: a drive low-pass's identification spent 1.47e8 of 1e8, and the drive stage's

@@ -21,18 +21,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 from pathlib import Path
 
 from stickslip_jax.diagnose import Policy
+from stickslip_jax.diagnose.report import entry_from_record
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.rules import first_refits, rank_value
 
 UNSIZED = {CandidateStatus.SCORED.value, CandidateStatus.NOT_SIZED.value}
-
-
-def _number(x) -> float:
-    return math.nan if x is None else float(x)
 
 
 def sized_entries(record: list[dict], unrecorded_converged: bool = True,
@@ -46,13 +42,13 @@ def sized_entries(record: list[dict], unrecorded_converged: bool = True,
     for c in record:
         if c["status"] in UNSIZED:
             continue
-        drop_free = c.get("sizing_drop_baseline_free")
+        # As sized, before any refit: no refit's outcome, the status a sizing leaves.
+        sized = entry_from_record(c, unrecorded_converged)
         out.append(CandidateResult(
-            c["name"], score=float(c["score_statistic"]), size_drop=float(c["sizing_drop"]),
-            size_converged=bool(c.get("sizing_converged", unrecorded_converged)),
-            size_drop_free=-math.inf if drop_free is None else float(drop_free),
-            size_free_converged=bool(c.get("sizing_baseline_free_converged", False)),
-            size_free_reach=_number(c.get("sizing_baseline_free_move"))))
+            sized.name, score=sized.score, size_drop=sized.size_drop,
+            size_converged=sized.size_converged, size_drop_free=sized.size_drop_free,
+            size_free_converged=sized.size_free_converged,
+            size_free_reach=sized.size_free_reach))
     return sorted(out, key=lambda r: -rank_value(r))
 
 

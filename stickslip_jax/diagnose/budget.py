@@ -198,6 +198,11 @@ class Budget:
             return True
         return self.spent + estimate + reserve <= self.total
 
+    def refuse(self, what: str, estimate: float, reserve: float = 0.0) -> str | None:
+        """None when work of ``estimate`` (``reserve`` kept) is allowed (:meth:`allows`);
+        else ``what`` recorded as skipped and the note saying so (:meth:`skip`)."""
+        return None if self.allows(estimate, reserve) else self.skip(what, estimate)
+
     def skip(self, what: str, estimate: float) -> str:
         """Record ``what`` (estimated at ``estimate`` [sample-evaluations]) as skipped;
         the note to attach to it."""

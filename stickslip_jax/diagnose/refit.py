@@ -130,7 +130,7 @@ def judge_plausibility(res: CandidateResult, cand: Candidate, say) -> None:
     """Set ``res.implausible`` from its refitted values (entry ``cand``), and say it."""
     res.implausible = cand.implausible(res.params)
     if res.implausible:
-        res.note = "; ".join(filter(None, [res.note, f"implausible: {res.implausible}"]))
+        res.add_note(f"implausible: {res.implausible}")
         say(f"[refit {cand.name}] implausible: {res.implausible}")
 
 
@@ -181,9 +181,10 @@ def refit(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Candida
     specs = held.specs
     need = problem.refit_estimate(held.start, setup.columns(held.start, specs),
                                   setup.max_steps)
-    if budgeted and not budget.allows(need, at.reserve):
-        res.set_aside(CandidateStatus.SKIPPED, budget.skip(f"refit {cand.name}", need))
-        say(f"[budget] refit {cand.name} {res.note}")
+    refused = budget.refuse(f"refit {cand.name}", need, at.reserve) if budgeted else None
+    if refused:
+        res.set_aside(CandidateStatus.SKIPPED, refused)
+        say(f"[budget] refit {cand.name} {refused}")
         return
     t0 = time.perf_counter()
     start = refit_start(setup, at, res, held, free)
@@ -226,9 +227,9 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
     columns = setup.columns(source, specs)
     need = (REIDENTIFY_EVALUATIONS * problem.evaluation_work(source, columns)
             + problem.refit_estimate(source, columns, setup.max_steps))
-    if not budget.allows(need, at.reserve):
-        note = budget.skip(f"re-identification of {cand.name}", need)
-        res.note = "; ".join(filter(None, [res.note, note]))
+    note = budget.refuse(f"re-identification of {cand.name}", need, at.reserve)
+    if note:
+        res.add_note(note)
         if not res.refitted:
             res.status = CandidateStatus.SKIPPED
         say(f"[budget] re-identification of {cand.name} {note}")
@@ -262,9 +263,8 @@ def reidentify(setup: RefitSetup, at: RoundStart, res: CandidateResult, cand: Ca
         return
     if not out.cost_end >= res.rss_after:  # also when not refitted (nan)
         record_refit(setup, at, res, fitted, out, specs, t0)
-        res.note = "; ".join(filter(None, [
-            "re-identified: the staged identification from the start with the "
-            "entry free, then the refit", res.note]))
+        res.add_note("re-identified: the staged identification from the start with the "
+                     "entry free, then the refit", first=True)
         judge_plausibility(res, cand, say)
     else:
         res.wall_s += time.perf_counter() - t0

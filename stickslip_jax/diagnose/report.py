@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from ..identify.residuals import periodogram_psd
 from ..plots import subplots
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
-from .results import CandidateStatus, Diagnosis
+from .results import CandidateResult, CandidateStatus, Diagnosis
 
 
 def criterion_text(policy: Policy = DEFAULT_POLICY) -> str:
@@ -112,6 +113,31 @@ def _evidence(c) -> dict:
             "material": c.material,
             "indistinguishable_from": list(c.indistinguishable_from),
             "note": c.note}
+
+
+def _number(x) -> float:
+    return math.nan if x is None else float(x)
+
+
+def entry_from_record(c: dict, unrecorded_converged: bool = True) -> CandidateResult:
+    """One recorded entry of ``diagnosis.json``'s ``candidates_by_round``, as the
+    decision rules read it (replays of a changed rule, ``benchmarks/bench_ablation.py``).
+    Records from before the held sizing's convergence was written take
+    ``unrecorded_converged`` for it."""
+    drop_free = c.get("sizing_drop_baseline_free")
+    return CandidateResult(
+        c["name"], score=float(c["score_statistic"]), size_drop=float(c["sizing_drop"]),
+        size_converged=bool(c.get("sizing_converged", unrecorded_converged)),
+        size_drop_free=-math.inf if drop_free is None else float(drop_free),
+        size_free_converged=bool(c.get("sizing_baseline_free_converged", False)),
+        size_free_reach=_number(c.get("sizing_baseline_free_move")),
+        refitted=bool(c.get("refitted", False)), rss_after=_number(c.get("rss_after")),
+        criterion_delta=_number(c.get("criterion_delta")), added=c.get("added_parameters", 0),
+        explained=_number(c.get("explained_share_of_excess")),
+        chi2_after=_number(c.get("chi2_after")), adequate=bool(c.get("adequate", False)),
+        material=bool(c.get("material", False)),
+        predicts=bool(c.get("predicts_regimes_left_out", True)),
+        implausible=c.get("implausible", ""), status=CandidateStatus(c["status"]))
 
 
 def diagnosis_dict(d: Diagnosis) -> dict:

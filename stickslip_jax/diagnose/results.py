@@ -165,6 +165,11 @@ class CandidateResult:
         """Give the entry no further refit this round, with ``note`` saying why."""
         self.status, self.note = status, note
 
+    def add_note(self, note: str, *, first: bool = False) -> None:
+        """Join ``note`` to the entry's note (``; ``), after it or, ``first``, before."""
+        parts = [note, self.note] if first else [self.note, note]
+        self.note = "; ".join(filter(None, parts))
+
 
 @dataclass
 class Diagnosis:

@@ -313,7 +313,7 @@ def _accept(refitted: list[CandidateResult], policy: Policy, significance: Signi
                f"and the numerical floor")
     else:
         why = f"explains only {100 * best.explained:.0f} % of the excess over the noise"
-    best.note = "; ".join(filter(None, [best.note, "not accepted: " + why]))
+    best.add_note("not accepted: " + why)
     say(f"[reject] {best.name}: {best.note}")
     return None
 

@@ -13,6 +13,7 @@ is its ablation.
 from __future__ import annotations
 
 import abc
+import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -91,8 +92,15 @@ class RefitRound:
     def refit(self, res: CandidateResult, by: RefitPass, *, budgeted: bool = True) -> None:
         """Refit ``res`` from the round's start (:func:`~..refit.refit`), as pass
         ``by``."""
+        with self.attributed(res, by):
+            refit(self.setup, self.at, res, *self.entry(res), budgeted=budgeted)
+
+    @contextlib.contextmanager
+    def attributed(self, res: CandidateResult, by: RefitPass):
+        """Name pass ``by`` on ``res`` (:attr:`~..results.CandidateResult.refit_pass`)
+        when the work inside changes its model."""
         before = res.actuator
-        refit(self.setup, self.at, res, *self.entry(res), budgeted=budgeted)
+        yield
         if res.actuator is not before:
             res.refit_pass = by.name
 

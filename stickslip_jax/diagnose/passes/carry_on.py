@@ -46,9 +46,9 @@ def carry_on_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     budget, say = problem.budget, problem.say
     start, names = res.actuator, setup.base_names + list(specs)
     need = problem.fit_estimate(start, setup.columns(start, specs), setup.max_steps)
-    if not budget.allows(need, at.reserve):
-        note = budget.skip(f"carrying on the refit of {cand.name}", need)
-        res.note = "; ".join(filter(None, [res.note, note]))
+    note = budget.refuse(f"carrying on the refit of {cand.name}", need, at.reserve)
+    if note:
+        res.add_note(note)
         say(f"[budget] carrying on the refit of {cand.name} {note}")
         return
     t0 = time.perf_counter()
@@ -67,7 +67,5 @@ def carry_on_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
         return
     record_refit(setup, at, res, fitted, out, specs, t0)
     res.carried_on = True
-    res.note = "; ".join(filter(None, [
-        res.note, f"carried on from its step cap (cost {before:.6g} -> "
-                  f"{out.cost_end:.6g})"]))
+    res.add_note(f"carried on from its step cap (cost {before:.6g} -> {out.cost_end:.6g})")
     judge_plausibility(res, cand, say)

@@ -40,9 +40,7 @@ class Reidentify(RefitPass):
         bar = max(rnd.at.rss, again.rss_identified)
         for res in reidentify_order(rnd.ranked, rnd.top):
             cand, held, _ = rnd.entry(res)
-            before = res.actuator
-            reidentify(rnd.setup, rnd.at, res, cand, held.start, held.specs, bar,
-                       init=again.init, fix=again.fix, staged=list(again.staged))
-            if res.actuator is not before:
-                res.refit_pass = self.name
+            with rnd.attributed(res, self):
+                reidentify(rnd.setup, rnd.at, res, cand, held.start, held.specs, bar,
+                           init=again.init, fix=again.fix, staged=list(again.staged))
         rnd.timings["reidentify_s"] = time.perf_counter() - t0
