@@ -10,7 +10,10 @@ positives, wrong names, right name first, detection against effect size, time.
 
 Each set is drawn by :func:`stickslip_jax.testing.random_sets.draw_set` from the
 split's seed and its index (``dev``: develop on it; ``test``: frozen, run it once the
-policy is fixed and report it, never tune on it) and simulated in memory: the 17
+policy is fixed and report it, never tune on it; ``dev2`` and ``test2`` likewise, 48
+sets drawn by the version-2 design: truths with their own PI operators and a few
+compound sets, whose rows name every hidden effect in ``also`` and count any of them
+named first as right) and simulated in memory: the 17
 recordings of the protocol (``--reduced``: the tests' 8 recordings and diagnose
 settings, a smoke run) from a random truth with one hidden effect or none, white noise
 0.5-2 nm, integrated 16x finer than fits use. :func:`diagnose` runs on it as
@@ -57,7 +60,9 @@ ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_diagnose import REDUCED_SETTINGS, protocol, run_set  # noqa: E402
 
-SEEDS = {"dev": rs.DEV_SEED, "test": rs.TEST_SEED}
+SEEDS = {name: seed for name, (seed, _) in rs.SPLITS.items()}
+DEV_SPLITS = ("dev", "dev2")
+"""The splits to develop on (the others are frozen test splits)."""
 HIDDEN = (*rs.EFFECTS, "none")
 """Rows of the confusion matrix."""
 UNEXPLAINED, ADEQUATE = "unexplained", "adequate"
@@ -101,7 +106,7 @@ def run_one(spec: rs.SetSpec, reduced: bool, config: DiagnoseConfig | None = Non
     row = run_set(spec.name, from_profile=True, recs=recs, config=config or DiagnoseConfig(),
                   **({"max_rounds": 3} | (REDUCED_SETTINGS if reduced else {})))
     row.update(
-        index=spec.index, hidden=spec.effect, form=spec.form,
+        index=spec.index, hidden=spec.effect, form=spec.form, also=list(spec.also),
         catalogue_form=spec.catalogue_form, strength=spec.strength,
         strength_name=spec.strength_name, strength_unit=spec.strength_unit,
         others=spec.others, noise_nm=1e9 * spec.noise_m,
@@ -110,9 +115,10 @@ def run_one(spec: rs.SetSpec, reduced: bool, config: DiagnoseConfig | None = Non
         beyond_to_noise=size["beyond_to_noise"], simulate_s=simulate_s,
         truth_factors=spec.truth_factors, commit=code_version())
     row["outcome"] = outcome(row)
-    row["right_first"] = bool(row["named"]) and row["named"][0] == spec.effect
-    row["wrong_first"] = bool(row["named"]) and row["named"][0] != spec.effect
-    row["wrong_any"] = any(n != spec.effect for n in row["named"])
+    # A compound set (version 2) hides several: naming any of them first is right.
+    row["right_first"] = bool(row["named"]) and row["named"][0] in spec.hidden
+    row["wrong_first"] = bool(row["named"]) and row["named"][0] not in spec.hidden
+    row["wrong_any"] = any(n not in spec.hidden for n in row["named"])
     return row
 
 
@@ -362,7 +368,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SEEDS), required=True)
     ap.add_argument("--sets", default="", help="comma-separated set indices (default 0 … n−1)")
-    ap.add_argument("--n", type=int, default=rs.SET_SIZE, help="sets in the split")
+    ap.add_argument("--n", type=int, default=None,
+                    help="sets in the split (default: its design's, 24 or 48)")
     ap.add_argument("--reduced", action="store_true",
                     help="the tests' 8-recording protocol and settings (a smoke run)")
     ap.add_argument("--json", type=Path, default=None)
@@ -385,11 +392,13 @@ def main() -> None:
     args = ap.parse_args()
     without = tuple(p for p in args.without.split(",") if p)
     added = tuple(p for p in args.with_.split(",") if p)
-    if args.scale_strength != 1.0 and (args.split != "dev" or not args.scale_strength > 0):
-        sys.exit("--scale-strength takes a positive factor on the dev split only: the "
-                 "frozen test split is reported as drawn")
-    seed = SEEDS[args.split]
-    chosen = [int(s) for s in args.sets.split(",") if s] or list(range(args.n))
+    if args.scale_strength != 1.0 and (args.split not in DEV_SPLITS
+                                       or not args.scale_strength > 0):
+        sys.exit("--scale-strength takes a positive factor on a development split only: "
+                 "a frozen test split is reported as drawn")
+    seed, design = rs.SPLITS[args.split]
+    n = design.size if args.n is None else args.n
+    chosen = [int(s) for s in args.sets.split(",") if s] or list(range(n))
     meta = {"split": args.split, "seed": seed, "reduced": args.reduced}
     if args.scale_strength != 1.0:  # (absent otherwise: earlier files stay resumable)
         meta["strength_scale"] = args.scale_strength
@@ -416,7 +425,7 @@ def main() -> None:
         if i in done:
             print(f"== set_{i:02d}: in {args.json} already", flush=True)
             continue
-        spec = rs.draw_set(seed, i)  # times 1.0 unless scaled: exactly the drawn set
+        spec = rs.draw_set(seed, i, design)  # times 1.0 unless scaled: exactly as drawn
         spec = dataclasses.replace(spec, strength=spec.strength * args.scale_strength)
         print(f"== {spec.name}", flush=True)
         rows.append(run_one(spec, args.reduced,

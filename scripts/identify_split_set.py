@@ -37,9 +37,10 @@ def main() -> None:
     ap.add_argument("--scale", type=float, default=1.0,
                     help="the drawn effect strength times this (dev only)")
     args = ap.parse_args()
-    if args.scale != 1.0 and args.split != "dev":
+    if args.scale != 1.0 and args.split not in ("dev", "dev2"):
         sys.exit("--scale is for development analogues: the test split is used as drawn")
-    spec = rs.draw_set(SEEDS[args.split], args.index)
+    seed, design = rs.SPLITS[args.split]
+    spec = rs.draw_set(seed, args.index, design)
     spec = dataclasses.replace(spec, strength=spec.strength * args.scale)
     print(f"{spec.name}: {spec.effect} ({spec.form}), {spec.strength_name} "
           f"{spec.strength:.4g} {spec.strength_unit}, {spec.others}")

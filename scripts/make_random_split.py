@@ -34,7 +34,7 @@ from stickslip_jax.testing import random_sets as rs  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
-SEEDS = {"dev": rs.DEV_SEED, "test": rs.TEST_SEED}
+SEEDS = {name: seed for name, (seed, _) in rs.SPLITS.items()}
 
 
 def answer(spec: rs.SetSpec, size: dict) -> dict:
@@ -55,11 +55,11 @@ def write_split(args) -> None:
     answers = {"split": args.split, "seed": seed,
                "protocol": "stickslip_jax.synthetic.paper_protocol() (17 recordings, 25 kHz)",
                "stepping": "REFERENCE_STEPPING",
-               "generator": "stickslip_jax.testing.random_sets.draw_set(seed, index)",
+               "generator": "stickslip_jax.testing.random_sets.split_sets(split)",
                "sets": {}}
     path = args.out / "answers.json"
     ss.files.check_output_path(path, force=args.force)
-    for spec in rs.draw_split(seed, args.n):
+    for spec in rs.split_sets(args.split, args.n):
         t0 = time.perf_counter()
         folder = args.out / spec.name
         folder.mkdir(exist_ok=True)
@@ -72,7 +72,7 @@ def write_split(args) -> None:
         print(f"{spec.name}: {spec.effect} ({spec.form}), effect "
               f"{1e9 * size['rms_m']:.3g} nm = {size['to_noise']:.3g} x noise "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
-    print(f"wrote {args.n} sets and {path}")
+    print(f"wrote {len(answers['sets'])} sets and {path}")
 
 
 def calibrate(args) -> None:
@@ -101,7 +101,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SEEDS))
     ap.add_argument("--out", type=Path)
-    ap.add_argument("--n", type=int, default=rs.SET_SIZE, help="sets 0 … n−1 of the split")
+    ap.add_argument("--n", type=int, default=None,
+                    help="sets 0 … n−1 of the split (default: its design's size)")
     ap.add_argument("--force", action="store_true", help="replace existing files")
     ap.add_argument("--no-beyond", action="store_true",
                     help="skip the effect size beyond the baseline (about 20 s a set)")
@@ -114,7 +115,7 @@ def main() -> None:
         return
     if args.split is None or args.out is None:
         ap.error("--split and --out are needed (or --calibrate)")
-    if args.n < 1:
+    if args.n is not None and args.n < 1:
         ap.error("--n must be at least 1")
     write_split(args)
 

@@ -2,6 +2,7 @@
 stated ranges, forms per entry, the null share, and effect sizes. No diagnosis runs
 here; the simulations use a five-recording protocol and a coarse stepping."""
 
+import dataclasses
 import math
 
 import jax.numpy as jnp
@@ -15,7 +16,7 @@ from stickslip_jax.stepping import Stepping
 from stickslip_jax.synthetic import paper_protocol
 from stickslip_jax.testing import random_sets as rs
 from stickslip_jax.testing.effects import SensorLowPass, VariantElastoPlastic
-from stickslip_jax.testing.truth import TRUTH_RANGES, identification_truth
+from stickslip_jax.testing.truth import PI_GRIDS, TRUTH_RANGES, identification_truth
 
 CANNOT_SHOW = {"preload_dependence"}  # one preload in the protocol
 SEEDS = (rs.DEV_SEED, rs.TEST_SEED, 7, 123456789)
@@ -135,3 +136,62 @@ def test_lorentzian_variant_is_the_catalogues_law():
     for v in (0.0, 1e-4, 2e-3, -5e-2):
         assert float(variant.zss_magnitude(v, drive)) == pytest.approx(
             float(base.zss_magnitude(v, drive)), rel=1e-14)
+
+
+def test_version_one_draws_are_pinned():
+    """Version 2 added streams of its own: the splits already run (dev, the frozen
+    test split) draw exactly what they drew before it."""
+    dev = rs.split_sets("dev", 4)
+    assert [(s.effect, s.form) for s in dev] == [
+        ("none", "null"), ("creep", "one_mode"), ("stribeck", "gaussian"), ("none", "null")]
+    assert [round(s.noise_m * 1e12) for s in dev] == [1709, 1072, 1300, 851]
+    first = rs.split_sets("test", 1)[0]
+    assert (first.effect, first.form) == ("sensor_delay", "low_pass")
+    assert first.strength == pytest.approx(1.3715547822568913e-06, rel=1e-12)
+    assert first.noise_m == pytest.approx(5.710057278830976e-10, rel=1e-12)
+    assert all(s.also == () and s.version == 1 for s in dev)
+    assert dev[1].truth["pi_thresholds"] == identification_truth()["pi_thresholds"]
+
+
+@pytest.mark.parametrize("name", ["dev2", "test2"])
+def test_version_two_holds_48_sets_a_null_per_block_drawn_grids_and_compounds(name):
+    from stickslip_jax.params import actuator_from_params
+
+    sets = rs.split_sets(name)
+    seed, design = rs.SPLITS[name]
+    assert len(sets) == 48 and design.version == 2
+    for b in range(12):  # one null in every block of four
+        assert sum(s.effect == "none" for s in sets[4 * b: 4 * b + 4]) == 1
+    fit_grid = identification_truth()["pi_thresholds"]
+    kinds = set()
+    for s in sets:
+        t = s.truth
+        kinds.add(s.truth_factors["pi_grid"])
+        assert t["pi_thresholds"] != fit_grid
+        assert len(t["pi_thresholds"]) == len(t["pi_weights"]) == s.truth_factors["pi_operators"]
+        assert t["pi_thresholds"][0] == 0.0 and np.all(np.diff(t["pi_thresholds"]) > 0)
+        # The stroke per volt stays that of the truth's own law: the weights' sum.
+        assert sum(t["pi_weights"]) == pytest.approx(
+            1.9e-8 * s.truth_factors["pi_linear"] + 0.6e-8 * s.truth_factors["pi_tail"])
+        actuator_from_params(t)  # a valid model
+    assert kinds == set(PI_GRIDS)
+    compound = [s for s in sets if s.also]
+    assert 4 <= len(compound) <= 6
+    for s in compound:
+        first, second = s.hidden
+        assert rs.PLACES[first] != rs.PLACES[second]
+    assert rs.split_sets(name, 5) == sets[:5]  # deterministic
+
+
+def test_a_compound_set_hides_both_effects():
+    spec = next(s for s in rs.split_sets("dev2") if s.also)
+    drives = short_protocol()
+    both = rs.effect_size(spec, drives, stepping=COARSE)["rms_m"]
+    first = rs.effect_size(dataclasses.replace(spec, also=()), drives,
+                           stepping=COARSE)["rms_m"]
+    second = rs.effect_size(dataclasses.replace(
+        spec, effect=spec.also[0]["effect"], form=spec.also[0]["form"],
+        strength=spec.also[0]["strength"], others=spec.also[0]["others"], also=()),
+        drives, stepping=COARSE)["rms_m"]
+    assert first > 0 and second > 0
+    assert both != pytest.approx(first, rel=1e-3) and both != pytest.approx(second, rel=1e-3)

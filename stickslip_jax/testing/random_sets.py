@@ -121,8 +121,15 @@ spring, Coulomb drag 7 - 35 %; creep 40 - 60 %; modes, sensor delay and drift 50
 
 Splits
 ------
-:data:`DEV_SEED`, to develop on freely, and :data:`TEST_SEED`, frozen: report on it,
-never tune on it.
+:data:`SPLITS` names each split's seed and :class:`SplitDesign`. Version 1 (``dev``,
+``test``): 24 sets, one null per block of three, the truths on the fit's PI grid.
+Version 2 (``dev2``, ``test2``, issue #63): 48 sets, one null per block of four (12
+nulls); every truth draws its own PI operators (count and thresholds,
+:func:`~.truth.draw_pi_grid`), so the nulls test a hysteresis shape the fit's grid
+cannot follow exactly; and in every second block the set after the null hides a second
+effect of another place in the actuator (:data:`PLACES`; compound sets, when the first
+is a catalogue entry). Develop on ``dev``/``dev2`` freely; ``test``/``test2`` are
+frozen: report on them, never tune on them.
 """
 
 from __future__ import annotations
@@ -160,7 +167,7 @@ from .effects import (
     SensorLowPass,
     VariantElastoPlastic,
 )
-from .truth import draw_truth
+from .truth import draw_pi_grid, draw_truth
 
 DEV_SEED = 20261126
 """The development split: develop, tune and debug on it freely."""
@@ -169,8 +176,49 @@ TEST_SEED = 2292930091
 """The test split's seed, drawn once with ``secrets.randbits(32)`` on 2026-11-26.
 Frozen; do not tune on it: run it once the policy is fixed, and report what it gives."""
 
+DEV2_SEED = 71883275
+"""The version-2 development split (:data:`SPLITS`): develop on it freely."""
+
+TEST2_SEED = 1725938153
+"""The version-2 test split's seed, drawn once with ``secrets.randbits(32)`` on
+2026-12-04. Frozen: run it once the method is fixed, and report what it gives."""
+
 SET_SIZE = 24
-"""Sets per split by default (8 of them null)."""
+"""Sets per split by default (8 of them null) in version 1."""
+
+
+@dataclass(frozen=True)
+class SplitDesign:
+    """How a split's sets are drawn (module docstring, "Splits")."""
+
+    version: int
+    size: int
+    """Sets in the split by default."""
+    block: int
+    """One null set per block of this many consecutive sets."""
+    pi_grid: bool
+    """The truths draw their own PI operators (:func:`~.truth.draw_pi_grid`)."""
+    compound: bool
+    """In every second block the set after the null hides a second effect."""
+
+
+V1 = SplitDesign(1, SET_SIZE, 3, pi_grid=False, compound=False)
+V2 = SplitDesign(2, 48, 4, pi_grid=True, compound=True)
+
+SPLITS: dict[str, tuple[int, SplitDesign]] = {
+    "dev": (DEV_SEED, V1), "test": (TEST_SEED, V1),
+    "dev2": (DEV2_SEED, V2), "test2": (TEST2_SEED, V2),
+}
+"""Split name → ``(seed, design)``."""
+
+PLACES: dict[str, str] = {
+    "stribeck": "friction", "viscous_friction": "friction", "contact_damping": "friction",
+    "drive_bandwidth": "drive stage", "sensor_delay": "sensor", "sensor_drift": "sensor",
+    "creep": "stroke", "rate_dependent_hysteresis": "stroke",
+    "structural_mode": "structure", "external_load": "slider",
+}
+"""Where each catalogue entry's effect acts: a compound set's second effect acts in
+another place than its first (two effects in one place would replace one another)."""
 
 NOISE_RANGE_M = (0.5e-9, 2e-9)
 """Noise σ per set, log-uniform [m]."""
@@ -420,6 +468,16 @@ class SetSpec:
     """The factors the truth was drawn with (:data:`~.truth.TRUTH_RANGES`)."""
     recording_seed: int
     """The noise draw's seed."""
+    also: tuple = ()
+    """Further hidden effects (compound sets of version 2): dictionaries with
+    ``effect``, ``form``, ``strength`` and ``others`` as above."""
+    version: int = 1
+    """The split design's version (:class:`SplitDesign`)."""
+
+    @property
+    def hidden(self) -> tuple[str, ...]:
+        """Every effect hidden: :attr:`effect`, then those of :attr:`also`."""
+        return (self.effect, *(e["effect"] for e in self.also))
 
     @property
     def name(self) -> str:
@@ -431,41 +489,73 @@ class SetSpec:
         return dataclasses.asdict(self)
 
 
-def _effect_at(seed: int, index: int) -> str:
-    """The effect of set ``index``: one null per block of three at a seed-drawn place;
-    the others run through seed-shuffled rounds of :data:`EFFECTS`."""
-    block, place = divmod(index, 3)
-    null_place = int(np.random.default_rng([seed, block, 0]).integers(3))
+def _null_place(seed: int, block: int, size: int) -> int:
+    return int(np.random.default_rng([seed, block, 0]).integers(size))
+
+
+def _effect_at(seed: int, index: int, size: int = 3) -> str:
+    """The effect of set ``index``: one null per block of ``size`` at a seed-drawn
+    place; the others run through seed-shuffled rounds of :data:`EFFECTS`."""
+    block, place = divmod(index, size)
+    null_place = _null_place(seed, block, size)
     if place == null_place:
         return "none"
-    j = 2 * block + place - (place > null_place)  # count of non-null sets before it
+    j = (size - 1) * block + place - (place > null_place)  # non-null sets before it
     rnd, pos = divmod(j, len(EFFECTS))
     return EFFECTS[int(np.random.default_rng([seed, rnd, 1]).permutation(len(EFFECTS))[pos])]
+
+
+def _is_compound(seed: int, index: int, design: SplitDesign) -> bool:
+    block, place = divmod(index, design.block)
+    return (design.compound and block % 2 == 1
+            and place == (_null_place(seed, block, design.block) + 1) % design.block)
+
+
+def _draw_effect(rng: np.random.Generator, f: Form) -> tuple[float, dict]:
+    """A strength (signed where the form is) and the other parameters of form ``f``."""
+    strength = _log_uniform(rng, f.low, f.high)
+    if f.signed and rng.uniform() < 0.5:
+        strength = -strength
+    return strength, {k: _log_uniform(rng, lo, hi) for k, (lo, hi) in f.others.items()}
+
+
+def _second_effect(rng: np.random.Generator, first: str) -> dict:
+    """A second effect for a compound set whose first is ``first``: a catalogue entry
+    acting in another place (:data:`PLACES`), its form and values drawn as a first's."""
+    entries = [e for e in EFFECTS if e in PLACES and PLACES[e] != PLACES[first]]
+    effect = entries[int(rng.integers(len(entries)))]
+    forms = forms_of(effect)
+    f = forms[int(rng.integers(len(forms)))]
+    strength, others = _draw_effect(rng, f)
+    return {"effect": effect, "form": f.name, "catalogue_form": f.catalogue,
+            "strength": strength, "others": others}
 
 
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def draw_set(seed: int, index: int) -> SetSpec:
-    """The spec of set ``index`` of the split with seed ``seed`` (deterministic)."""
+def draw_set(seed: int, index: int, design: SplitDesign = V1) -> SetSpec:
+    """The spec of set ``index`` of the split with seed ``seed`` drawn by ``design``
+    (deterministic; version 1's draws are those before version 2 existed)."""
     if index < 0:
         raise ValueError(f"index must be ≥ 0, got {index}")
-    effect = _effect_at(seed, index)
+    effect = _effect_at(seed, index, design.block)
     rng = np.random.default_rng([seed, index, 2])
     truth, factors = draw_truth(rng)
     noise = _log_uniform(rng, *NOISE_RANGE_M)
     rec_seed = int(rng.integers(2**31))
     forms = forms_of(effect)
     f = forms[int(rng.integers(len(forms)))]
-    strength, others = 0.0, {}
-    if effect != "none":
-        strength = _log_uniform(rng, f.low, f.high)
-        if f.signed and rng.uniform() < 0.5:
-            strength = -strength
-        others = {k: _log_uniform(rng, lo, hi) for k, (lo, hi) in f.others.items()}
+    strength, others = (0.0, {}) if effect == "none" else _draw_effect(rng, f)
+    also = ()
+    if design.pi_grid:  # streams of their own: version 1's draws stay as they were
+        truth, drawn = draw_pi_grid(np.random.default_rng([seed, index, 3]), truth, factors)
+        factors = {**factors, **drawn}
+    if effect in PLACES and _is_compound(seed, index, design):
+        also = (_second_effect(np.random.default_rng([seed, index, 4]), effect),)
     return SetSpec(seed, index, effect, f.name, f.catalogue, strength, f.strength, f.unit,
-                   others, noise, truth, factors, rec_seed)
+                   others, noise, truth, factors, rec_seed, also, design.version)
 
 
 def fixed_set(effect: str, form_name: str, strength: float, *, others: dict | None = None,
@@ -482,9 +572,15 @@ def fixed_set(effect: str, form_name: str, strength: float, *, others: dict | No
                    identification_truth() if truth is None else truth, {}, 0)
 
 
-def draw_split(seed: int, n: int = SET_SIZE) -> list[SetSpec]:
-    """Sets ``0 … n−1`` of the split with seed ``seed``."""
-    return [draw_set(seed, i) for i in range(n)]
+def draw_split(seed: int, n: int | None = None, design: SplitDesign = V1) -> list[SetSpec]:
+    """Sets ``0 … n−1`` (default the design's size) of the split with seed ``seed``."""
+    return [draw_set(seed, i, design) for i in range(design.size if n is None else n)]
+
+
+def split_sets(name: str, n: int | None = None) -> list[SetSpec]:
+    """The sets of the split ``name`` (:data:`SPLITS`)."""
+    seed, design = SPLITS[name]
+    return draw_split(seed, n, design)
 
 
 def truth_actuator(spec: SetSpec) -> Actuator:
@@ -493,8 +589,11 @@ def truth_actuator(spec: SetSpec) -> Actuator:
 
 
 def hidden_actuator(spec: SetSpec) -> Actuator:
-    """The set's truth with its hidden effect."""
-    return form(spec.effect, spec.form).build(truth_actuator(spec), spec.strength, spec.others)
+    """The set's truth with its hidden effects."""
+    act = form(spec.effect, spec.form).build(truth_actuator(spec), spec.strength, spec.others)
+    for e in spec.also:
+        act = form(e["effect"], e["form"]).build(act, e["strength"], e["others"])
+    return act
 
 
 def _drives(drives):

@@ -59,6 +59,63 @@ Ms (0.0247 kg, the mass scale every fit fixes), zba_ratio (0.667, the paper's), 
 PI thresholds, Kact2·N = 0, no load."""
 
 
+PI_GRIDS = ("sparse", "dense", "scaled")
+"""The kinds of PI operator grid :func:`draw_pi_grid` draws, equally likely."""
+
+PI_GRID_RANGES: dict[str, tuple[float, float]] = {
+    "sparse_operators": (4, 12),
+    "sparse_top": (0.6, 1.2),
+    "dense_operators": (60, 120),
+    "dense_top": (0.8, 1.25),
+    "scaled": (0.7, 1.4),
+}
+"""What :func:`draw_pi_grid` draws: operator counts (uniform integers, both ends
+included) and factors (log-uniform) on the fit grid's highest threshold (57.8 V) or on
+the whole grid."""
+
+
+def draw_pi_grid(rng: np.random.Generator, params: dict, factors: dict) -> tuple[dict, dict]:
+    """``params`` (a truth of :func:`draw_truth`, drawn with ``factors``) with its own PI
+    operators instead of the fit grid's 35: the hysteresis's *shape* drawn too, so that a
+    null set tests the case where the fit's threshold grid cannot follow it exactly
+    (issue #63). One of :data:`PI_GRIDS`, equally likely:
+
+    - ``sparse``: 4-12 operators, thresholds 0 and the others uniform at random below a
+      top of 0.6-1.2 times the fit grid's highest;
+    - ``dense``: 60-120 operators evenly spaced up to 0.8-1.25 times it (a nearly
+      continuous threshold density);
+    - ``scaled``: the fit grid times 0.7-1.4 (rate-scaled thresholds).
+
+    The weights follow the truth's own law (linear weight, tail sum, tail decay:
+    :func:`pi_weights`), so the stroke per volt stays in the truth's range. Returns
+    ``(params, drawn)``, ``drawn`` saying what was drawn (``pi_grid``, ``pi_operators``
+    and the factor)."""
+    base = np.asarray(params["pi_thresholds"], dtype=float)
+    kind = PI_GRIDS[int(rng.integers(len(PI_GRIDS)))]
+
+    def log_uniform(lo, hi):
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+    if kind == "sparse":
+        n = int(rng.integers(PI_GRID_RANGES["sparse_operators"][0],
+                             PI_GRID_RANGES["sparse_operators"][1] + 1))
+        factor = log_uniform(*PI_GRID_RANGES["sparse_top"])
+        thresholds = np.concatenate([[0.0], np.sort(rng.uniform(0.0, factor * base[-1], n - 1))])
+    elif kind == "dense":
+        n = int(rng.integers(PI_GRID_RANGES["dense_operators"][0],
+                             PI_GRID_RANGES["dense_operators"][1] + 1))
+        factor = log_uniform(*PI_GRID_RANGES["dense_top"])
+        thresholds = np.linspace(0.0, factor * base[-1], n)
+    else:
+        factor = log_uniform(*PI_GRID_RANGES["scaled"])
+        thresholds = base * factor
+    p = dict(params)
+    p["pi_thresholds"] = [float(r) for r in thresholds]
+    p["pi_weights"] = pi_weights(1.9e-8 * factors["pi_linear"], 0.6e-8 * factors["pi_tail"],
+                                 thresholds, PI_TAIL_DECAY_V * factors["pi_decay_V"])
+    return p, {"pi_grid": kind, "pi_operators": int(thresholds.size), "pi_grid_factor": factor}
+
+
 def draw_truth(rng: np.random.Generator) -> tuple[dict, dict[str, float]]:
     """A truth drawn around :func:`identification_truth` (:data:`TRUTH_RANGES`):
     ``(params, factors)``, the parameter dictionary and the factor drawn per entry."""
