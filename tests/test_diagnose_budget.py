@@ -319,6 +319,7 @@ def test_the_learned_correction_reserve_covers_its_three_fits():
     import numpy as np
 
     import stickslip_jax as ss
+    from stickslip_jax.diagnose.config import DEFAULT_CONFIG
     from stickslip_jax.diagnose.problem import Problem
     from stickslip_jax.diagnose.refit import RefitSetup
     from stickslip_jax.identify.dataset import Dataset
@@ -330,7 +331,8 @@ def test_the_learned_correction_reserve_covers_its_three_fits():
                            step_duration_s=0.01, sine_periods=1)[:2]
     data = Dataset.from_recordings(simulate_set(act, specs, noise_m=1e-9, seed=1))
     problem = Problem(data, np.full(len(data), 1e-9), {}, None)
-    setup = RefitSetup(problem, [], BASELINE_COLUMNS, 25)
+    setup = RefitSetup(problem, [], BASELINE_COLUMNS, 25, DEFAULT_CONFIG.identify_max_steps,
+                       DEFAULT_CONFIG.carry_on_steps)
     n, k = problem.samples, BASELINE_COLUMNS + len(LEARNED_FEATURES)
     held = np.size(act.hysteresis.weights)
     factor = problem.plan_factor(act)

@@ -171,7 +171,7 @@ def test_a_refit_ending_where_the_simulator_cannot_step_is_set_aside_not_a_crash
     assert fits == ["r, PI weights held", "r"]
 
     setup = RefitSetup(problem, baseline_free(attached, problem.data, problem.fix),
-                       n_base=0, max_steps=5)
+                       n_base=0, max_steps=5, identify_max_steps=5, carry_on_steps=5)
     at = RoundStart(act=attached, rss=1e4, nrmse=0.0, excess=1e4, reserve=0.0)
     held = HeldSizing(attached, entry_specs, None, np.zeros(1), 9e3, True)
     res = CandidateResult("external_load")
@@ -219,7 +219,8 @@ def test_a_budgeted_refit_whose_second_stage_would_pass_the_budget_is_skipped_th
     assert over.value.need == pytest.approx(need) and len(second) == 1
 
     setup = RefitSetup(problem, baseline_free(attached, problem.data, problem.fix),
-                       n_base=columns - 1, max_steps=5)
+                       n_base=columns - 1, max_steps=5, identify_max_steps=5,
+                       carry_on_steps=5)
     at = RoundStart(act=attached, rss=1e4, nrmse=0.0, excess=1e4, reserve=0.0)
     held = HeldSizing(attached, entry_specs, None, np.zeros(1), 9e3, True)
     res = CandidateResult("external_load")

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from .budget import DEFAULT_WORK_BUDGET
 from .locate import PEAK_MIN_LEVEL, PEAK_OCTAVES
+from .passes import DEFAULT_PASSES, PASS_NAMES
 from .policy import DEFAULT_POLICY, Policy
 
 
@@ -74,7 +75,6 @@ class DiagnoseConfig:
     @property
     def refit_passes(self) -> tuple:
         """The refit passes each round runs: :attr:`passes`, else the default ones."""
-        from .passes import DEFAULT_PASSES  # passes -> refit -> config: import at use
         return DEFAULT_PASSES if self.passes is None else tuple(self.passes)
 
     def without(self, *names: str) -> DiagnoseConfig:
@@ -90,7 +90,6 @@ class DiagnoseConfig:
     def with_passes(self, *names: str) -> DiagnoseConfig:
         """This configuration with the refit passes ``names`` added after its own
         (opt-in passes; ValueError on an unknown name or one it runs already)."""
-        from .passes import PASS_NAMES  # passes -> refit -> config: import at use
         passes = self.refit_passes
         bad = [n for n in names if n not in PASS_NAMES or n in {p.name for p in passes}]
         if bad:

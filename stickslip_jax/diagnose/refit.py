@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,12 +21,14 @@ from ..model.extensions import LEARNED_FEATURES
 from ..significance import per_recording_chi2
 from .budget import REIDENTIFY_EVALUATIONS
 from .catalogue import Candidate
-from .config import DEFAULT_CONFIG, DiagnoseConfig
 from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
 from .problem import OverBudget, Problem
 from .results import CandidateResult, CandidateStatus
 from .sizing import FreeSizing, HeldSizing
+
+if TYPE_CHECKING:  # config imports the passes, which import this module
+    from .config import DiagnoseConfig
 
 
 @dataclass(frozen=True)
@@ -39,20 +42,20 @@ class RefitSetup:
     """Their θ columns."""
     max_steps: int
     """Levenberg-Marquardt steps per refit at most."""
+    identify_max_steps: int
+    """Steps per identification step of a re-identification at most."""
+    carry_on_steps: int
+    """Steps at most by which a free sizing is carried on (:mod:`.sizing`)."""
     policy: Policy = DEFAULT_POLICY
     regimes: tuple[str, ...] = ()
     """The regime of each recording, for the leave-one-regime-out check (:mod:`.holdout`)."""
-    identify_max_steps: int = DEFAULT_CONFIG.identify_max_steps
-    """Steps per identification step of a re-identification at most."""
-    carry_on_steps: int = DEFAULT_CONFIG.carry_on_steps
-    """Steps at most by which a free sizing is carried on (:mod:`.sizing`)."""
 
     @classmethod
     def from_config(cls, problem: Problem, base_names: list[str], n_base: int,
                     config: DiagnoseConfig, regimes: tuple[str, ...]) -> RefitSetup:
         """The setup of a diagnosis run as ``config``."""
-        return cls(problem, base_names, n_base, config.max_steps, config.policy, regimes,
-                   config.identify_max_steps, config.carry_on_steps)
+        return cls(problem, base_names, n_base, config.max_steps,
+                   config.identify_max_steps, config.carry_on_steps, config.policy, regimes)
 
     def columns(self, start: Actuator, specs: dict) -> int:
         """A refit's θ columns: the baseline's and the entry's own quantities, freed
