@@ -25,6 +25,7 @@ from stickslip_jax.diagnose.passes import (
 from stickslip_jax.diagnose.passes import base as passes_base
 from stickslip_jax.diagnose.passes import carry_on as passes_carry_on
 from stickslip_jax.diagnose.policy import Policy
+from stickslip_jax.diagnose.records import RefitOutcome, amended
 from stickslip_jax.diagnose.refit import RoundStart
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.run import _refit_round
@@ -41,11 +42,11 @@ def _round(ranked, outcomes, monkeypatch, *, seeded=()):
         calls.append(res.name)
         share = outcomes.get(res.name, 0.0)
         rss = at.rss - share * at.excess
-        res.refitted, res.status, res.actuator = True, CandidateStatus.REFITTED, object()
-        res.rss_after, res.criterion_delta = rss, rss - at.rss + 3 * np.log(N)
-        res.explained, res.chi2_after = share, rss / N
-        res.material, res.added = share > 0, 3
-        res.refit_converged = outcomes.get("converged", True)
+        res.status = CandidateStatus.REFITTED
+        res.refit = RefitOutcome(
+            actuator=object(), rss_after=rss, criterion_delta=rss - at.rss + 3 * np.log(N),
+            explained=share, chi2_after=rss / N, material=share > 0, added=3,
+            converged=outcomes.get("converged", True))
 
     monkeypatch.setattr(passes_base, "refit", fake_refit)
     problem = SimpleNamespace(n_obs=N, say=lambda s: None,
@@ -151,7 +152,7 @@ def test_the_deciding_refits_stopped_at_their_cap_are_carried_on(monkeypatch):
     FirstRefits().run(rnd)
     assert calls == ["stribeck", "external_load", "creep", "sensor_delay"]
     ranked[1].implausible = "a load of 3 N"
-    ranked[2].refit_converged = True
+    ranked[2].refit = amended(ranked[2].refit, converged=True)
     rnd.top = 3
     CarryOnDeciding().run(rnd)
     # By ΔBIC: stribeck, external_load (implausible), creep (converged), sensor_delay

@@ -28,6 +28,7 @@ from stickslip_jax.diagnose.policy import (
     Policy,
 )
 from stickslip_jax.diagnose.problem import ProjectedResiduals
+from stickslip_jax.diagnose.records import RefitOutcome, amended
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.rules import (
     fallback_refits,
@@ -92,7 +93,7 @@ def test_below_the_leader_a_sizing_converged_above_the_baseline_waits_for_the_fa
     assert [r.name for r in first_refits(ranked[2:], top=3)] == ["drive_bandwidth"]
     # If the first refits explain nothing, the fallback takes it.
     for r in ranked[:2]:
-        r.refitted = True
+        r.refit = RefitOutcome()
     assert [r.name for r in fallback_refits(ranked)] == ["drive_bandwidth"]
 
 
@@ -121,7 +122,7 @@ def test_the_fallback_refits_every_other_sized_entry_but_those_pointing_the_wron
                      ("contact_damping", 0.005 * BASE, 0.002 * BASE),
                      ("drive_bandwidth", -0.001 * BASE, -0.9 * BASE))
     for r in ranked:
-        r.refitted = r.name in ("sensor_drift", "structural_mode")
+        r.refit = RefitOutcome() if r.name in ("sensor_drift", "structural_mode") else None
     again = fallback_refits(ranked)
     # A positive score whose sizing did not lower the cost still gets its refit.
     assert [r.name for r in again] == ["stribeck", "rate_dependent_hysteresis",
@@ -187,7 +188,7 @@ def test_the_entries_re_identified_are_the_top_of_the_ranking_that_show_promise(
                      ("rate_dependent_hysteresis", 0.026 * BASE, 0.02 * BASE),
                      ("drive_bandwidth", -0.05 * BASE, -14.0 * BASE))
     for r, after in zip(ranked[:5], (0.75, 0.4, 0.85, 0.74, 0.73), strict=True):
-        r.refitted, r.rss_after = True, after * BASE
+        r.refit = RefitOutcome(rss_after=after * BASE)
     assert [r.name for r in reidentify_order(ranked, top=3)] == [
         "sensor_delay", "stribeck", "sensor_drift"]
     # Never one whose score and sizing both point the wrong way.
@@ -265,25 +266,24 @@ def test_a_seeded_entry_gets_a_second_look_when_the_explaining_refit_leaves_stru
     rate, mode, amp = _ranked(("rate_dependent_hysteresis", 0.3 * BASE, 0.2 * BASE),
                               ("structural_mode", 0.03 * BASE, 0.1 * BASE),
                               ("drive_bandwidth", -0.02 * BASE, 0.02 * BASE))
-    rate.refitted, rate.rss_after, rate.chi2_after = True, rss, rss / N
-    rate.material = True
-    rate.explained, rate.criterion_delta = 0.9, -1.0e5
+    rate.refit = RefitOutcome(rss_after=rss, chi2_after=rss / N, material=True,
+                              explained=0.9, criterion_delta=-1.0e5)
     ranked = [rate, mode, amp]
     assert far_from_noise(ranked, N)
     assert [r.name for r in second_look(ranked, {"drive_bandwidth"})] == ["drive_bandwidth"]
     # An explaining refit near the noise leaves nothing to look for.
-    rate.chi2_after = SECOND_LOOK_CHI2 - 0.01
+    rate.refit = amended(rate.refit, chi2_after=SECOND_LOOK_CHI2 - 0.01)
     assert not far_from_noise(ranked, N)
-    rate.chi2_after = rss / N
+    rate.refit = amended(rate.refit, chi2_after=rss / N)
     # Only refits that would be accepted count (ΔBIC, share explained).
-    rate.criterion_delta = 5.0
+    rate.refit = amended(rate.refit, criterion_delta=5.0)
     assert not far_from_noise(ranked, N)
-    rate.criterion_delta, rate.explained = -1.0e5, 0.5
+    rate.refit = amended(rate.refit, criterion_delta=-1.0e5, explained=0.5)
     assert not far_from_noise(ranked, N)
     # A seeded entry already refitted, or pointing the wrong way twice, gets none.
-    amp.refitted = True
+    amp.refit = RefitOutcome()
     assert second_look(ranked, {"drive_bandwidth"}) == []
-    amp.refitted, amp.size_drop = False, -1e4
+    amp.refit, amp.size_drop = None, -1e4
     assert second_look(ranked, {"drive_bandwidth"}) == []
 
 
@@ -345,8 +345,9 @@ def test_the_baseline_before_its_polish_is_sized_only_when_the_polish_moved_it()
 
 
 def _refitted(name, explained, *, delta=-1e3, material=True, predicts=True, adequate=False):
-    r = CandidateResult(name, refitted=True, explained=explained, criterion_delta=delta,
-                        material=material, predicts=predicts, adequate=adequate)
+    r = CandidateResult(name, refit=RefitOutcome(
+        explained=explained, criterion_delta=delta, material=material, predicts=predicts,
+        adequate=adequate))
     return r
 
 
@@ -385,7 +386,7 @@ def test_a_mode_too_damped_to_ring_is_no_resonance_and_never_named():
     r = _refitted("structural_mode", 0.8)
     r.implausible = mode.implausible(damped)
     assert not explains(r) and not acceptable(r) and not acceptable_partly(r)
-    r.adequate = True  # even at the noise level
+    r.refit = amended(r.refit, adequate=True)  # even at the noise level
     assert not explains(r)
     # The next refit that explains is named instead; alone, nothing is.
     other = _refitted("contact_damping", 0.76, delta=-500.0)
@@ -503,14 +504,15 @@ def test_a_rival_is_indistinguishable_only_within_the_tolerance_of_the_best():
     sig = _significance()
     assert sig.tolerance > 0
     tol = sig.tolerance * N
-    best = CandidateResult("sensor_delay", rss_after=N, criterion_delta=-3.68e6)
-    near = CandidateResult("rate_dependent_hysteresis", rss_after=N + 0.9 * tol,
-                           criterion_delta=-3.68e6 + 0.9 * tol)
-    far = CandidateResult("drive_bandwidth", rss_after=N + 5 * tol,
-                          criterion_delta=0.97 * -3.68e6)
+    best = CandidateResult("sensor_delay",
+                           refit=RefitOutcome(rss_after=N, criterion_delta=-3.68e6))
+    near = CandidateResult("rate_dependent_hysteresis", refit=RefitOutcome(
+        rss_after=N + 0.9 * tol, criterion_delta=-3.68e6 + 0.9 * tol))
+    far = CandidateResult("drive_bandwidth", refit=RefitOutcome(
+        rss_after=N + 5 * tol, criterion_delta=0.97 * -3.68e6))
     assert indistinguishable(near, best, sig)
     assert not indistinguishable(far, best, sig)  # 97 % of the best ΔBIC: told apart
-    near.criterion_delta = -5.0  # not accepted-grade: never a rival
+    near.refit = amended(near.refit, criterion_delta=-5.0)  # not accepted-grade: no rival
     assert not indistinguishable(near, best, sig)
 
 
@@ -604,7 +606,7 @@ def test_the_fallback_spends_no_refit_on_an_entry_out_of_reach():
                      ("creep", 0.1 * BASE, 0.2 * BASE),
                      ("stribeck", 0.05 * BASE, 0.01 * BASE),
                      ("external_load", 0.01 * BASE, 0.1 * BASE))
-    ranked[0].refitted = True
+    ranked[0].refit = RefitOutcome()
     for r, free, converged in zip(ranked[1:], (0.24, 0.02, 0.11), (True, False, True),
                                   strict=True):
         r.size_drop_free, r.size_free_converged = free * BASE, converged
@@ -624,7 +626,7 @@ def test_an_entry_out_of_reach_is_refitted_when_it_could_rival_an_acceptance():
     sig = _significance()
     tol = sig.tolerance * N
     best = _refitted("sensor_drift", 0.6)
-    best.rss_after = BASE - 0.6 * EXCESS
+    best.refit = amended(best.refit, rss_after=BASE - 0.6 * EXCESS)
     near = CandidateResult("creep", size_drop=0.5 * EXCESS, size_free_converged=True,
                            size_drop_free=0.6 * EXCESS - 0.6 * tol)
     far = CandidateResult("stribeck", size_drop=0.1 * EXCESS, size_free_converged=True,
@@ -634,7 +636,7 @@ def test_an_entry_out_of_reach_is_refitted_when_it_could_rival_an_acceptance():
     # A reach within the tolerance of the accepted-grade drop: it could end
     # indistinguishable from it, so it gets its refit; the far one does not.
     assert rivals_in_reach([best, near, far], BASE, tol, N) == [near]
-    best.explained = 0.3  # nothing accepted-grade: no rival to look for
+    best.refit = amended(best.refit, explained=0.3)  # nothing accepted-grade: no rival
     assert rivals_in_reach([best, near, far], BASE, tol, N) == []
 
 
@@ -650,7 +652,7 @@ def test_a_first_refit_that_cannot_rival_an_acceptance_is_not_spent():
     tol = sig.tolerance * N
     drop = 0.9 * EXCESS
     best = _refitted("drive_bandwidth", 0.9, delta=-drop + 3 * np.log(N))
-    best.rss_after, best.added = BASE - drop, 3
+    best.refit = amended(best.refit, rss_after=BASE - drop, added=3)
     assert rival_bar([best], BASE, tol, N) == pytest.approx(drop - tol)
     near = CandidateResult("stribeck", size_drop=0.5 * drop, size_free_converged=True,
                            size_drop_free=drop - 0.5 * tol)  # reach 1.5 drop - tol
@@ -665,11 +667,11 @@ def test_a_first_refit_that_cannot_rival_an_acceptance_is_not_spent():
     assert not cannot_rival(loose, bar)
     # Where the ΔBIC penalty of the accepted refit's extra parameters exceeds the
     # tolerance, a rival with fewer parameters is preferred a little below its drop.
-    best.added = 3 + int(2 * tol / np.log(N))
+    best.refit = amended(best.refit, added=3 + int(2 * tol / np.log(N)))
     assert rival_bar(ranked, BASE, tol, N) == pytest.approx(
         drop - (best.added - 1) * np.log(N))
     # Nothing that would be accepted yet (a share below the policy's): no bar.
-    best.explained = 0.3
+    best.refit = amended(best.refit, explained=0.3)
     assert rival_bar(ranked, BASE, tol, N) is None
     assert not cannot_rival(far, None)
 
@@ -690,7 +692,7 @@ def test_an_unconverged_free_sizing_is_carried_on_before_it_bounds_a_refit():
     # reaches carries nothing on; one above it does.
     assert unbounded(ranked, 0.05 * BASE) == []
     assert [r.name for r in unbounded(ranked, 0.06 * BASE)] == ["stribeck"]
-    ranked[1].refitted = True
+    ranked[1].refit = RefitOutcome()
     assert unbounded(ranked) == []
 
 

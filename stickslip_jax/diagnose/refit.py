@@ -24,6 +24,7 @@ from .catalogue import Candidate
 from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
 from .problem import OverBudget, Problem
+from .records import RefitOutcome
 from .results import CandidateResult, CandidateStatus
 from .sizing import FreeSizing, HeldSizing
 
@@ -99,31 +100,30 @@ def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     problem = setup.problem
     n_obs = problem.n_obs
     rss_new = float(out.cost_end)
-    k = sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values())
-    res.refitted = True
-    res.refit_converged = bool(out.converged)
-    res.status = CandidateStatus.REFITTED
-    res.actuator = fitted
-    res.params = {n: float(np.asarray(s.getter(fitted))) for n, s in specs.items()}
-    res.rss_before, res.rss_after = at.rss, rss_new
-    res.nrmse_before = at.nrmse
-    res.nrmse_after = float(problem.nrmse_from_whitened(out.residual).mean())
-    res.criterion_delta = rss_new - at.rss + k * np.log(n_obs)
-    res.added = int(k)
-    # Share of the excess over the noise; undefined when the residual is already at
-    # the noise level (then only the criterion and (e/σ)² speak).
-    res.explained = ((at.rss - rss_new) / at.excess
-                     if at.excess > setup.policy.excess_min * n_obs else np.nan)
-    res.chi2_after = rss_new / n_obs
+    k = int(sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values()))
     sig = problem.significance
-    res.adequate = sig.adequate(rss_new, per_recording_chi2(out.residual, problem.counts))
-    res.material = sig.material(at.rss, rss_new)
-    res.removed_nm = sig.nm(at.rss - rss_new)
-    res.removed_noise_share = (at.rss - rss_new) / n_obs
+    held_out, predicts = res.held_out, res.predicts  # an earlier refit's, if unchecked
     if out.jacobian is not None and out.residual is not None and setup.regimes:
-        res.held_out = held_out_cost(out.residual, out.jacobian, setup.regimes)
-        res.predicts = (at.held_out is None
-                        or predicts_as_well(res.held_out, at.held_out))
+        held_out = held_out_cost(out.residual, out.jacobian, setup.regimes)
+        predicts = at.held_out is None or predicts_as_well(held_out, at.held_out)
+    res.refit = RefitOutcome(
+        actuator=fitted,
+        params={n: float(np.asarray(s.getter(fitted))) for n, s in specs.items()},
+        converged=bool(out.converged),
+        rss_before=at.rss, rss_after=rss_new, nrmse_before=at.nrmse,
+        nrmse_after=float(problem.nrmse_from_whitened(out.residual).mean()),
+        criterion_delta=rss_new - at.rss + k * np.log(n_obs), added=k,
+        # Share of the excess over the noise; undefined when the residual is already
+        # at the noise level (then only the criterion and (e/σ)² speak).
+        explained=((at.rss - rss_new) / at.excess
+                   if at.excess > setup.policy.excess_min * n_obs else np.nan),
+        chi2_after=rss_new / n_obs,
+        adequate=sig.adequate(rss_new, per_recording_chi2(out.residual, problem.counts)),
+        material=sig.material(at.rss, rss_new),
+        removed_nm=sig.nm(at.rss - rss_new),
+        removed_noise_share=(at.rss - rss_new) / n_obs,
+        held_out=held_out, predicts=predicts)
+    res.status = CandidateStatus.REFITTED
     res.wall_s += time.perf_counter() - t0
     # Not converged: its ΔBIC is an upper bound (more steps could only lower it).
     res.note = "" if out.converged else f"refit {out.message}"

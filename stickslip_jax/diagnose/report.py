@@ -13,6 +13,7 @@ from ..identify.residuals import periodogram_psd
 from ..plots import subplots
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
+from .records import RefitOutcome
 from .results import CandidateResult, CandidateStatus, Diagnosis
 
 
@@ -125,18 +126,22 @@ def entry_from_record(c: dict, unrecorded_converged: bool = True) -> CandidateRe
     Records from before the held sizing's convergence was written take
     ``unrecorded_converged`` for it."""
     drop_free = c.get("sizing_drop_baseline_free")
+    refit = None
+    if c.get("refitted", False):
+        refit = RefitOutcome(
+            rss_after=_number(c.get("rss_after")),
+            criterion_delta=_number(c.get("criterion_delta")),
+            added=c.get("added_parameters", 0),
+            explained=_number(c.get("explained_share_of_excess")),
+            chi2_after=_number(c.get("chi2_after")), adequate=bool(c.get("adequate", False)),
+            material=bool(c.get("material", False)),
+            predicts=bool(c.get("predicts_regimes_left_out", True)))
     return CandidateResult(
         c["name"], score=float(c["score_statistic"]), size_drop=float(c["sizing_drop"]),
         size_converged=bool(c.get("sizing_converged", unrecorded_converged)),
         size_drop_free=-math.inf if drop_free is None else float(drop_free),
         size_free_converged=bool(c.get("sizing_baseline_free_converged", False)),
-        size_free_reach=_number(c.get("sizing_baseline_free_move")),
-        refitted=bool(c.get("refitted", False)), rss_after=_number(c.get("rss_after")),
-        criterion_delta=_number(c.get("criterion_delta")), added=c.get("added_parameters", 0),
-        explained=_number(c.get("explained_share_of_excess")),
-        chi2_after=_number(c.get("chi2_after")), adequate=bool(c.get("adequate", False)),
-        material=bool(c.get("material", False)),
-        predicts=bool(c.get("predicts_regimes_left_out", True)),
+        size_free_reach=_number(c.get("sizing_baseline_free_move")), refit=refit,
         implausible=c.get("implausible", ""), status=CandidateStatus(c["status"]))
 
 

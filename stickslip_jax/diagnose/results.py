@@ -14,6 +14,7 @@ from ..model.actuator import Actuator
 from .locate import RecordingResidual
 from .policy import DEFAULT_POLICY, Policy
 from .problem import FIRST_ORDER_REACH
+from .records import RefitOutcome
 
 if TYPE_CHECKING:  # config -> passes -> refit -> results
     from .config import DiagnoseConfig
@@ -70,6 +71,18 @@ SET_ASIDE = frozenset({CandidateStatus.NOT_SIZED, CandidateStatus.SKIPPED,
 """The statuses of an entry given no further refit in its round."""
 
 
+_NOT_REFITTED = RefitOutcome()
+"""What :class:`CandidateResult`'s refit properties read when it was not refitted."""
+
+
+def _from_refit(name: str) -> property:
+    """A read-only property giving the entry's :attr:`~CandidateResult.refit`'s ``name``
+    (:data:`_NOT_REFITTED`'s when not refitted)."""
+    def get(self):
+        return getattr(self.refit or _NOT_REFITTED, name)
+    return property(get, doc=f"Its refit's ``{name}`` (:class:`~.records.RefitOutcome`).")
+
+
 @dataclass
 class CandidateResult:
     """One catalogue entry's score and, if refitted, its refit."""
@@ -91,12 +104,12 @@ class CandidateResult:
     size_free_reach: float = np.nan
     """The largest move [θ] of a baseline coordinate that sizing's cost takes for
     granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
-    refitted: bool = False
+    refit: RefitOutcome | None = None
+    """Its refit's record (:func:`~.refit.record_refit`); None when not refitted. The
+    properties below (:attr:`rss_after`, :attr:`explained`, ...) read it."""
     refit_pass: str = ""
     """The refit pass whose refit it holds (:mod:`.passes`: ``first``, ``fallback``,
     ``rivals``, ``second_look``, ``reidentify``); empty when not refitted."""
-    refit_converged: bool = False
-    """Its refit ended by the Gauss-Newton test, not at its step cap."""
     carried_on: bool = False
     """Its refit, stopped at its step cap, was carried on
     (:class:`~.passes.CarryOnDeciding`)."""
@@ -105,32 +118,6 @@ class CandidateResult:
     (:func:`~.refit.refit_start`); empty when not refitted."""
     refit_start_cost: float = np.nan
     """The whitened cost there."""
-    params: dict = field(default_factory=dict)
-    rss_before: float = np.nan
-    rss_after: float = np.nan
-    nrmse_before: float = np.nan
-    nrmse_after: float = np.nan
-    criterion_delta: float = np.nan
-    added: int = 0
-    """The parameters the refit added to the model (the ``k`` of its ΔBIC)."""
-    explained: float = np.nan
-    chi2_after: float = np.nan
-    adequate: bool = False
-    """The refit leaves a residual within the tolerance of the noise
-    (:meth:`~stickslip_jax.significance.Significance.adequate`)."""
-    material: bool = False
-    """What the refit removed exceeds the tolerance
-    (:meth:`~stickslip_jax.significance.Significance.material`)."""
-    removed_nm: float = np.nan
-    """What the refit removed, as an RMS over the samples [nm]."""
-    removed_noise_share: float = np.nan
-    """What the refit removed, as a share of the noise variance [-]."""
-    held_out: dict = field(default_factory=dict)
-    """Per regime, the whitened RSS of its recordings predicted by the refit fitted to
-    the other regimes (:mod:`.holdout`)."""
-    predicts: bool = True
-    """The refit predicts the regimes left out at least as well as the model it extends
-    (:func:`~.holdout.predicts_as_well`); True when not checked."""
     implausible: str = ""
     """Why the refitted values are not the physics the entry names, in words; empty
     when they are (:meth:`~.catalogue.base.CatalogueEntry.implausible`). An implausible
@@ -145,9 +132,31 @@ class CandidateResult:
     """What happened to the entry, in words, for the reports (never read by a
     decision: :attr:`status` is)."""
     wall_s: float = 0.0
-    actuator: Actuator | None = None
     status: CandidateStatus = CandidateStatus.SCORED
     """Where its round ended (:class:`CandidateStatus`)."""
+
+    @property
+    def refitted(self) -> bool:
+        """It holds a refit (:attr:`refit`)."""
+        return self.refit is not None
+
+    refit_converged = _from_refit("converged")
+    actuator = _from_refit("actuator")
+    params = _from_refit("params")
+    rss_before = _from_refit("rss_before")
+    rss_after = _from_refit("rss_after")
+    nrmse_before = _from_refit("nrmse_before")
+    nrmse_after = _from_refit("nrmse_after")
+    criterion_delta = _from_refit("criterion_delta")
+    added = _from_refit("added")
+    explained = _from_refit("explained")
+    chi2_after = _from_refit("chi2_after")
+    adequate = _from_refit("adequate")
+    material = _from_refit("material")
+    removed_nm = _from_refit("removed_nm")
+    removed_noise_share = _from_refit("removed_noise_share")
+    held_out = _from_refit("held_out")
+    predicts = _from_refit("predicts")
 
     @property
     def size_free_extrapolated(self) -> bool:

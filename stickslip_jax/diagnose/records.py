@@ -1,0 +1,68 @@
+"""Frozen records of what a phase of the diagnosis made, read by the phases after it.
+
+A record is made once, by the one function of its phase, and never changed: a later
+pass that improves on it (a refit carried on, a re-identification) makes a new one.
+:class:`RefitOutcome` is the refit phase's (:func:`~.refit.record_refit`); the sizings'
+are :class:`~.sizing.HeldSizing` and :class:`~.sizing.FreeSizing`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model.actuator import Actuator
+
+
+@dataclass(frozen=True)
+class RefitOutcome:
+    """What one refit of a catalogue entry gave (every baseline parameter free with the
+    entry's own), against the round's start. Costs are whitened RSS ((e/σ)² summed over
+    the samples). The defaults are "not measured" (NaN), for records built by hand
+    (tests, replays of recorded runs)."""
+
+    actuator: Actuator | None = None
+    """The refitted model."""
+    params: dict = field(default_factory=dict)
+    """The entry's own parameters there (SI)."""
+    converged: bool = False
+    """It ended by the Gauss-Newton test, not at its step cap."""
+    rss_before: float = np.nan
+    """The round's start cost."""
+    rss_after: float = np.nan
+    nrmse_before: float = np.nan
+    """Mean NRMSE over the recordings [-] at the round's start."""
+    nrmse_after: float = np.nan
+    criterion_delta: float = np.nan
+    """ΔBIC: ``rss_after − rss_before + added·ln N``."""
+    added: int = 0
+    """The parameters the refit added to the model (the ``k`` of its ΔBIC)."""
+    explained: float = np.nan
+    """Share of the round's excess over the noise removed [-]; NaN where the round's
+    residual is at the noise level."""
+    chi2_after: float = np.nan
+    """Mean (e/σ)² per sample after it."""
+    adequate: bool = False
+    """It leaves a residual within the tolerance of the noise
+    (:meth:`~stickslip_jax.significance.Significance.adequate`)."""
+    material: bool = False
+    """What it removed exceeds the tolerance
+    (:meth:`~stickslip_jax.significance.Significance.material`)."""
+    removed_nm: float = np.nan
+    """What it removed, as an RMS over the samples [nm]."""
+    removed_noise_share: float = np.nan
+    """What it removed, as a share of the noise variance [-]."""
+    held_out: dict = field(default_factory=dict)
+    """Per regime, the whitened RSS of its recordings predicted by the refit fitted to
+    the other regimes (:mod:`.holdout`)."""
+    predicts: bool = True
+    """It predicts the regimes left out at least as well as the model it extends
+    (:func:`~.holdout.predicts_as_well`); True when not checked."""
+
+
+def amended(outcome: RefitOutcome | None, **fields) -> RefitOutcome:
+    """A new record: ``outcome`` (or one not measured, when None) with ``fields``
+    changed; ``outcome`` itself is left as it was."""
+    return dataclasses.replace(outcome or RefitOutcome(), **fields)
