@@ -25,7 +25,7 @@ from stickslip_jax.diagnose.passes import (
 from stickslip_jax.diagnose.passes import base as passes_base
 from stickslip_jax.diagnose.passes import carry_on as passes_carry_on
 from stickslip_jax.diagnose.policy import Policy
-from stickslip_jax.diagnose.records import RefitOutcome, amended
+from stickslip_jax.diagnose.records import RefitOutcome, SizingOutcome, amended
 from stickslip_jax.diagnose.refit import RoundStart
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.run import _refit_round
@@ -62,7 +62,8 @@ def _round(ranked, outcomes, monkeypatch, *, seeded=()):
 
 
 def _ranked(*values):
-    return [CandidateResult(name, score=score, size_drop=drop) for name, score, drop in values]
+    return [CandidateResult(name, score=score, sizing=SizingOutcome(drop=drop))
+            for name, score, drop in values]
 
 
 def test_the_passes_run_in_order_and_each_refit_names_its_pass(monkeypatch):

@@ -28,7 +28,7 @@ from stickslip_jax.diagnose.policy import (
     Policy,
 )
 from stickslip_jax.diagnose.problem import ProjectedResiduals
-from stickslip_jax.diagnose.records import RefitOutcome, amended
+from stickslip_jax.diagnose.records import RefitOutcome, SizingOutcome, amended
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.rules import (
     fallback_refits,
@@ -46,7 +46,8 @@ from stickslip_jax.identify.solve import solve_least_squares
 
 
 def _ranked(*values):
-    return [CandidateResult(name, score=score, size_drop=drop) for name, score, drop in values]
+    return [CandidateResult(name, score=score, sizing=SizingOutcome(drop=drop))
+            for name, score, drop in values]
 
 
 # The cases below are generated around the policy's thresholds (whitened RSS over
@@ -63,7 +64,7 @@ def test_only_competitive_entries_are_refitted_beside_the_leader():
                      ("structural_mode", 0.02 * lead, (COMPETITIVE_SHARE - 0.14) * lead))
     assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth"]
     # One within the share is refitted; ``top`` still caps the count.
-    ranked[2].size_drop = COMPETITIVE_SHARE * lead + 1.0
+    ranked[2].sizing = amended(ranked[2].sizing, drop=COMPETITIVE_SHARE * lead + 1.0)
     assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth",
                                                              "structural_mode"]
     assert [r.name for r in first_refits(ranked, top=2)] == ["drive_bandwidth"]
@@ -86,7 +87,7 @@ def test_below_the_leader_a_sizing_converged_above_the_baseline_waits_for_the_fa
         "creep", "rate_dependent_hysteresis", "drive_bandwidth"]
     assert "converged above" not in why_not_refitted(ranked[2], ranked, 3)
     # Converged there: an optimum worse than no entry contradicts the score.
-    ranked[2].size_converged = True
+    ranked[2].sizing = amended(ranked[2].sizing, converged=True)
     assert [r.name for r in first_refits(ranked, top=3)] == ["creep",
                                                              "rate_dependent_hysteresis"]
     # The leader is refitted whatever its sizing did.
@@ -142,7 +143,7 @@ def test_an_entry_without_a_refit_is_told_why():
                      ("external_load", 0.1 * lead, (COMPETITIVE_SHARE - 0.1) * lead),
                      ("sensor_drift", 0.03 * lead, 0.05 * lead),
                      ("stribeck", -0.01 * lead, -1.0))
-    ranked[1].size_converged = True
+    ranked[1].sizing = amended(ranked[1].sizing, converged=True)
     assert "sizing converged above the baseline's cost" in why_not_refitted(
         ranked[1], ranked, 3)
     assert f"below {100 * COMPETITIVE_SHARE:.0f} % of the leader" in why_not_refitted(
@@ -169,12 +170,12 @@ def test_a_leader_whose_sizing_reached_the_noise_is_refitted_alone():
             f"{other:.0f} %") in note
     # A competitor whose sizing came within LEADER_ALONE_LEAD of the leader's keeps
     # its refit.
-    ranked[1].size_drop = LEADER_ALONE_LEAD * ranked[0].size_drop
+    ranked[1].sizing = amended(ranked[1].sizing, drop=LEADER_ALONE_LEAD * ranked[0].size_drop)
     assert [r.name for r in first_refits(ranked, top=3, excess=EXCESS)] == [
         "rate_dependent_hysteresis", "creep", "structural_mode"]
     # A leader short of LEADER_ALONE_SHARE has company.
-    ranked[1].size_drop = 0.3 * EXCESS
-    ranked[0].size_drop = (LEADER_ALONE_SHARE - 0.01) * EXCESS
+    ranked[1].sizing = amended(ranked[1].sizing, drop=0.3 * EXCESS)
+    ranked[0].sizing = amended(ranked[0].sizing, drop=(LEADER_ALONE_SHARE - 0.01) * EXCESS)
     assert len(first_refits(ranked, top=3, excess=EXCESS)) == 3
 
 
@@ -283,7 +284,8 @@ def test_a_seeded_entry_gets_a_second_look_when_the_explaining_refit_leaves_stru
     # A seeded entry already refitted, or pointing the wrong way twice, gets none.
     amp.refit = RefitOutcome()
     assert second_look(ranked, {"drive_bandwidth"}) == []
-    amp.refit, amp.size_drop = None, -1e4
+    amp.refit = None
+    amp.sizing = amended(amp.sizing, drop=-1e4)
     assert second_look(ranked, {"drive_bandwidth"}) == []
 
 
@@ -454,13 +456,13 @@ def test_an_entry_the_baseline_absorbed_is_ranked_by_its_drop_with_the_baseline_
     ranked = _ranked(("sensor_delay", lead, lead),
                      ("drive_bandwidth", 0.03 * lead, 0.1 * lead))
     assert [r.name for r in first_refits(ranked, top=3)] == ["sensor_delay"]
-    ranked[0].size_drop_free = 1.05 * lead
-    ranked[1].size_drop_free = 1.2 * lead
+    ranked[0].sizing = amended(ranked[0].sizing, drop_free=1.05 * lead)
+    ranked[1].sizing = amended(ranked[1].sizing, drop_free=1.2 * lead)
     ranked.sort(key=lambda r: -rank_value(r))
     assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth",
                                                              "sensor_delay"]
     # A free drop never lifts an entry whose held sizing converged above the baseline.
-    ranked[1].size_drop, ranked[1].size_converged = -1.0, True
+    ranked[1].sizing = amended(ranked[1].sizing, drop=-1.0, converged=True)
     assert [r.name for r in first_refits(ranked, top=3)] == ["drive_bandwidth"]
 
 
@@ -519,9 +521,10 @@ def test_a_rival_is_indistinguishable_only_within_the_tolerance_of_the_best():
 def test_a_refits_reach_is_bounded_by_its_converged_sizings_only():
     from stickslip_jax.diagnose.rules import refit_reach
 
-    r = CandidateResult("creep", score=900.0, size_drop=1000.0, size_drop_free=1600.0)
+    r = CandidateResult("creep", score=900.0,
+                        sizing=SizingOutcome(drop=1000.0, drop_free=1600.0))
     assert refit_reach(r) == np.inf  # the free sizing did not converge: no bound
-    r.size_free_converged = True
+    r.sizing = amended(r.sizing, free_converged=True)
     assert refit_reach(r) == 2 * 1600.0 - 1000.0  # as much again as the freedom bought
     r.score = 5000.0
     assert refit_reach(r) == 5000.0  # never below the first-order promise
@@ -580,9 +583,10 @@ def test_the_reach_bounds_the_refits_drop_where_the_baseline_bends(bend):
                                jnp.zeros(ke), max_steps=200, gn_tol=1e-8, label="free")
     from stickslip_jax.diagnose.rules import refit_reach
 
-    r = CandidateResult("creep", score=0.0, size_drop=cost0 - cost_held,
-                        size_drop_free=max(cost0 - float(free.cost_end), cost0 - cost_held),
-                        size_free_converged=bool(free.converged))
+    r = CandidateResult("creep", score=0.0, sizing=SizingOutcome(
+        drop=cost0 - cost_held,
+        drop_free=max(cost0 - float(free.cost_end), cost0 - cost_held),
+        free_converged=bool(free.converged)))
     refit_drop = cost0 - cost_joint
     assert r.size_drop < 0.9 * refit_drop  # the baseline absorbed part of the effect
     assert refit_drop <= refit_reach(r)
@@ -609,7 +613,7 @@ def test_the_fallback_spends_no_refit_on_an_entry_out_of_reach():
     ranked[0].refit = RefitOutcome()
     for r, free, converged in zip(ranked[1:], (0.24, 0.02, 0.11), (True, False, True),
                                   strict=True):
-        r.size_drop_free, r.size_free_converged = free * BASE, converged
+        r.sizing = amended(r.sizing, drop_free=free * BASE, free_converged=converged)
     assert refit_reach(ranked[1]) < reach  # 0.28 of BASE: cannot reach half the excess
     again = fallback_refits(ranked, reach)
     # The unconverged free sizing bounds nothing: refitted; the others are out of reach.
@@ -627,10 +631,10 @@ def test_an_entry_out_of_reach_is_refitted_when_it_could_rival_an_acceptance():
     tol = sig.tolerance * N
     best = _refitted("sensor_drift", 0.6)
     best.refit = amended(best.refit, rss_after=BASE - 0.6 * EXCESS)
-    near = CandidateResult("creep", size_drop=0.5 * EXCESS, size_free_converged=True,
-                           size_drop_free=0.6 * EXCESS - 0.6 * tol)
-    far = CandidateResult("stribeck", size_drop=0.1 * EXCESS, size_free_converged=True,
-                          size_drop_free=0.1 * EXCESS)
+    near = CandidateResult("creep", sizing=SizingOutcome(
+        drop=0.5 * EXCESS, free_converged=True, drop_free=0.6 * EXCESS - 0.6 * tol))
+    far = CandidateResult("stribeck", sizing=SizingOutcome(
+        drop=0.1 * EXCESS, free_converged=True, drop_free=0.1 * EXCESS))
     for r in (near, far):
         r.set_aside(CandidateStatus.OUT_OF_REACH, "out of reach")
     # A reach within the tolerance of the accepted-grade drop: it could end
@@ -654,12 +658,12 @@ def test_a_first_refit_that_cannot_rival_an_acceptance_is_not_spent():
     best = _refitted("drive_bandwidth", 0.9, delta=-drop + 3 * np.log(N))
     best.refit = amended(best.refit, rss_after=BASE - drop, added=3)
     assert rival_bar([best], BASE, tol, N) == pytest.approx(drop - tol)
-    near = CandidateResult("stribeck", size_drop=0.5 * drop, size_free_converged=True,
-                           size_drop_free=drop - 0.5 * tol)  # reach 1.5 drop - tol
-    far = CandidateResult("creep", size_drop=0.5 * drop, size_free_converged=True,
-                          size_drop_free=0.7 * drop)  # reach 0.9 drop
-    loose = CandidateResult("external_load", size_drop=0.5 * drop,
-                            size_drop_free=0.6 * drop)  # free sizing unconverged
+    near = CandidateResult("stribeck", sizing=SizingOutcome(
+        drop=0.5 * drop, free_converged=True, drop_free=drop - 0.5 * tol))  # 1.5 drop - tol
+    far = CandidateResult("creep", sizing=SizingOutcome(
+        drop=0.5 * drop, free_converged=True, drop_free=0.7 * drop))  # reach 0.9 drop
+    loose = CandidateResult("external_load", sizing=SizingOutcome(
+        drop=0.5 * drop, drop_free=0.6 * drop))  # free sizing unconverged
     ranked = [best, near, far, loose]
     bar = rival_bar(ranked, BASE, tol, N)
     assert not cannot_rival(near, bar)
@@ -682,9 +686,11 @@ def test_an_unconverged_free_sizing_is_carried_on_before_it_bounds_a_refit():
     ranked = _ranked(("creep", 0.1 * BASE, 0.2 * BASE), ("stribeck", 0.05 * BASE, 0.01 * BASE),
                      ("external_load", 0.01 * BASE, 0.1 * BASE),
                      ("drive_bandwidth", -0.001 * BASE, -0.9 * BASE))
-    ranked[0].size_drop_free, ranked[0].size_free_converged = 0.24 * BASE, True
-    ranked[1].size_drop_free = 0.02 * BASE  # stopped short of its optimum
-    ranked[3].size_drop_free = -0.5 * BASE  # no promise: never refitted, never carried on
+    ranked[0].sizing = amended(ranked[0].sizing, drop_free=0.24 * BASE, free_converged=True)
+    # stribeck's stopped short of its optimum:
+    ranked[1].sizing = amended(ranked[1].sizing, drop_free=0.02 * BASE)
+    # drive_bandwidth: no promise, never refitted, never carried on.
+    ranked[3].sizing = amended(ranked[3].sizing, drop_free=-0.5 * BASE)
     # external_load: no free sizing at all (-inf): nothing to carry on.
     assert [r.name for r in unbounded(ranked)] == ["stribeck"]
     # Where it stopped, stribeck's bound is already its score (0.05 BASE, above
@@ -731,14 +737,14 @@ def test_an_extrapolated_free_sizing_counts_nothing_and_is_not_carried_on():
         return FreeSizing("drive_bandwidth", None, np.zeros(1), span, cost, converged,
                           np.array([0.1, -reach, 0.0]))  # reach: the largest |move|
 
-    r = CandidateResult("drive_bandwidth", score=150.0, size_drop=200.0)
+    r = CandidateResult("drive_bandwidth", score=150.0, sizing=SizingOutcome(drop=200.0))
     record_free_sizing(r, free(6_000.0, True, 0.6), rss)  # within the first-order range
     assert (r.size_drop_free, r.size_free_converged, r.size_free_extrapolated) == (
         4_000.0, True, False)
     assert rank_value(r) == 4_000.0 and refit_reach(r) == 2 * 4_000.0 - 200.0
     # The same fall with the baseline moved by more than a factor e: the linearisation's
     # fall, not one a refit can reach. Ranked by its held sizing, bounding nothing.
-    r = CandidateResult("drive_bandwidth", score=150.0, size_drop=200.0)
+    r = CandidateResult("drive_bandwidth", score=150.0, sizing=SizingOutcome(drop=200.0))
     record_free_sizing(r, free(6_000.0, False, 1.7), rss)
     assert (r.size_drop_free, r.size_free_converged, r.size_free_extrapolated) == (
         200.0, False, True)
@@ -747,7 +753,7 @@ def test_an_extrapolated_free_sizing_counts_nothing_and_is_not_carried_on():
     assert unbounded([r]) == []  # carried on, it would extrapolate further
     # An unconverged sizing within range is carried on; if that ends beyond the range,
     # its earlier drop no longer counts either.
-    r = CandidateResult("drive_bandwidth", score=150.0, size_drop=200.0)
+    r = CandidateResult("drive_bandwidth", score=150.0, sizing=SizingOutcome(drop=200.0))
     record_free_sizing(r, free(9_000.0, False, 0.4), rss)
     assert unbounded([r]) == [r] and r.size_drop_free == 1_000.0
     record_free_sizing(r, free(6_000.0, False, 2.5), rss)

@@ -44,11 +44,7 @@ def sized_entries(record: list[dict], unrecorded_converged: bool = True,
             continue
         # As sized, before any refit: no refit's outcome, the status a sizing leaves.
         sized = entry_from_record(c, unrecorded_converged)
-        out.append(CandidateResult(
-            sized.name, score=sized.score, size_drop=sized.size_drop,
-            size_converged=sized.size_converged, size_drop_free=sized.size_drop_free,
-            size_free_converged=sized.size_free_converged,
-            size_free_reach=sized.size_free_reach))
+        out.append(CandidateResult(sized.name, score=sized.score, sizing=sized.sizing))
     return sorted(out, key=lambda r: -rank_value(r))
 
 

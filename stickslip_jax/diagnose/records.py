@@ -2,8 +2,10 @@
 
 A record is made once, by the one function of its phase, and never changed: a later
 pass that improves on it (a refit carried on, a re-identification) makes a new one.
-:class:`RefitOutcome` is the refit phase's (:func:`~.refit.record_refit`); the sizings'
-are :class:`~.sizing.HeldSizing` and :class:`~.sizing.FreeSizing`.
+:class:`SizingOutcome` is the sizing phase's (what an entry's sizings removed; the fits
+themselves, to go on from, are :class:`~.sizing.HeldSizing` and
+:class:`~.sizing.FreeSizing`), :class:`RefitOutcome` the refit phase's
+(:func:`~.refit.record_refit`).
 """
 
 from __future__ import annotations
@@ -14,6 +16,32 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..model.actuator import Actuator
+
+
+@dataclass(frozen=True)
+class SizingOutcome:
+    """What an entry's sizings removed from the round's whitened cost (:mod:`.sizing`):
+    with the baseline held (made by :func:`~.sizing.size_entries`) and with the baseline
+    free to first order (added by :func:`~.sizing.record_free_sizing`, again when that
+    sizing is carried on). The defaults are "not sized"."""
+
+    drop: float = 0.0
+    """What the sizing removed, the baseline held."""
+    converged: bool = False
+    """That sizing ended by its Gauss-Newton test (at an optimum of the entry's own
+    parameters), not at its step cap."""
+    drop_free: float = -np.inf
+    """What the sizing removes with the baseline free to first order (never below
+    :attr:`drop`; ``-inf`` when not computed)."""
+    free_converged: bool = False
+    """That sizing ended by its Gauss-Newton test (at its optimum)."""
+    free_reach: float = np.nan
+    """The largest move [θ] of a baseline coordinate that sizing's cost takes for
+    granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
+
+
+NOT_SIZED = SizingOutcome()
+"""The sizing record of an entry not sized."""
 
 
 @dataclass(frozen=True)
@@ -62,7 +90,7 @@ class RefitOutcome:
     (:func:`~.holdout.predicts_as_well`); True when not checked."""
 
 
-def amended(outcome: RefitOutcome | None, **fields) -> RefitOutcome:
-    """A new record: ``outcome`` (or one not measured, when None) with ``fields``
-    changed; ``outcome`` itself is left as it was."""
-    return dataclasses.replace(outcome or RefitOutcome(), **fields)
+def amended(record, **fields):
+    """A new record: ``record`` (a :class:`SizingOutcome` or :class:`RefitOutcome`; None:
+    a refit not measured) with ``fields`` changed; ``record`` itself is left as it was."""
+    return dataclasses.replace(RefitOutcome() if record is None else record, **fields)

@@ -13,7 +13,7 @@ from ..identify.residuals import periodogram_psd
 from ..plots import subplots
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
-from .records import RefitOutcome
+from .records import RefitOutcome, SizingOutcome
 from .results import CandidateResult, CandidateStatus, Diagnosis
 
 
@@ -136,12 +136,14 @@ def entry_from_record(c: dict, unrecorded_converged: bool = True) -> CandidateRe
             chi2_after=_number(c.get("chi2_after")), adequate=bool(c.get("adequate", False)),
             material=bool(c.get("material", False)),
             predicts=bool(c.get("predicts_regimes_left_out", True)))
+    sizing = SizingOutcome(
+        drop=float(c["sizing_drop"]),
+        converged=bool(c.get("sizing_converged", unrecorded_converged)),
+        drop_free=-math.inf if drop_free is None else float(drop_free),
+        free_converged=bool(c.get("sizing_baseline_free_converged", False)),
+        free_reach=_number(c.get("sizing_baseline_free_move")))
     return CandidateResult(
-        c["name"], score=float(c["score_statistic"]), size_drop=float(c["sizing_drop"]),
-        size_converged=bool(c.get("sizing_converged", unrecorded_converged)),
-        size_drop_free=-math.inf if drop_free is None else float(drop_free),
-        size_free_converged=bool(c.get("sizing_baseline_free_converged", False)),
-        size_free_reach=_number(c.get("sizing_baseline_free_move")), refit=refit,
+        c["name"], score=float(c["score_statistic"]), sizing=sizing, refit=refit,
         implausible=c.get("implausible", ""), status=CandidateStatus(c["status"]))
 
 

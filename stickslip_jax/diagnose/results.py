@@ -14,7 +14,7 @@ from ..model.actuator import Actuator
 from .locate import RecordingResidual
 from .policy import DEFAULT_POLICY, Policy
 from .problem import FIRST_ORDER_REACH
-from .records import RefitOutcome
+from .records import NOT_SIZED, RefitOutcome, SizingOutcome
 
 if TYPE_CHECKING:  # config -> passes -> refit -> results
     from .config import DiagnoseConfig
@@ -75,6 +75,14 @@ _NOT_REFITTED = RefitOutcome()
 """What :class:`CandidateResult`'s refit properties read when it was not refitted."""
 
 
+def _from_sizing(name: str) -> property:
+    """A read-only property giving the entry's :attr:`~CandidateResult.sizing`'s
+    ``name``."""
+    def get(self):
+        return getattr(self.sizing, name)
+    return property(get, doc=f"Its sizings' ``{name}`` (:class:`~.records.SizingOutcome`).")
+
+
 def _from_refit(name: str) -> property:
     """A read-only property giving the entry's :attr:`~CandidateResult.refit`'s ``name``
     (:data:`_NOT_REFITTED`'s when not refitted)."""
@@ -91,19 +99,8 @@ class CandidateResult:
     probe: str = ""
     score: float = 0.0
     strength: float = 0.0
-    size_drop: float = 0.0
-    """What the sizing removed from the whitened cost, the baseline held (:mod:`.sizing`)."""
-    size_converged: bool = False
-    """That sizing ended by its Gauss-Newton test (at an optimum of the entry's own
-    parameters), not at its step cap."""
-    size_drop_free: float = -np.inf
-    """What the sizing removes with the baseline free to first order (never below
-    :attr:`size_drop`; ``-inf`` when not computed; :mod:`.sizing`)."""
-    size_free_converged: bool = False
-    """That sizing ended by its Gauss-Newton test (at its optimum)."""
-    size_free_reach: float = np.nan
-    """The largest move [θ] of a baseline coordinate that sizing's cost takes for
-    granted (:meth:`~.problem.BaselineSpan.reach`; NaN when not computed)."""
+    sizing: SizingOutcome = NOT_SIZED
+    """What its sizings removed (:mod:`.sizing`); the ``size_*`` properties read it."""
     refit: RefitOutcome | None = None
     """Its refit's record (:func:`~.refit.record_refit`); None when not refitted. The
     properties below (:attr:`rss_after`, :attr:`explained`, ...) read it."""
@@ -140,6 +137,11 @@ class CandidateResult:
         """It holds a refit (:attr:`refit`)."""
         return self.refit is not None
 
+    size_drop = _from_sizing("drop")
+    size_converged = _from_sizing("converged")
+    size_drop_free = _from_sizing("drop_free")
+    size_free_converged = _from_sizing("free_converged")
+    size_free_reach = _from_sizing("free_reach")
     refit_converged = _from_refit("converged")
     actuator = _from_refit("actuator")
     params = _from_refit("params")

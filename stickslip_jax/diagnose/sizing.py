@@ -41,6 +41,7 @@ nothing; the free sizings that a refit confirmed moved the baseline by 0.0001-0.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -213,13 +214,13 @@ def record_free_sizing(res: CandidateResult, free: FreeSizing, rss: float) -> No
     whether that sizing converged. An :attr:`~FreeSizing.extrapolated` one counts
     for nothing beyond the held drop and bounds nothing
     (:func:`~.rules.refit_reach`); it is not carried on (:func:`~.rules.unbounded`)."""
-    res.size_free_reach = free.reach
     if free.extrapolated:
-        res.size_drop_free = res.size_drop
-        res.size_free_converged = False
-        return
-    res.size_drop_free = max(rss - free.cost, res.size_drop_free, res.size_drop)
-    res.size_free_converged = free.converged
+        drop, converged = res.size_drop, False
+    else:
+        drop = max(rss - free.cost, res.size_drop_free, res.size_drop)
+        converged = free.converged
+    res.sizing = dataclasses.replace(res.sizing, free_reach=free.reach, drop_free=drop,
+                                     free_converged=converged)
 
 
 def carry_on_free_sizing(problem: Problem, res: CandidateResult,
@@ -315,7 +316,8 @@ def size_entries(problem: Problem, chosen: Sequence[CandidateResult],
         held = size_best(problem, cand.name, starts, max_steps=max_steps)
         if held is None:
             continue
-        res.size_drop, res.size_converged = rss - held.cost, held.converged
+        res.sizing = dataclasses.replace(res.sizing, drop=rss - held.cost,
+                                         converged=held.converged)
         if baseline_span is not None:
             # The round starts at an optimum, where the residual is (nearly) orthogonal
             # to the span: its projected cost is ``rss``, the reference of both drops.
