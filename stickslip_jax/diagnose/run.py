@@ -1,7 +1,10 @@
 """The diagnosis loop: baseline, locate, score the catalogue, size, refit, accept, repeat.
 
 :func:`diagnose` reads as its phases; each lives in its own module, and every threshold
-it decides by is a field of its :class:`~.policy.Policy`:
+it decides by is a field of its :class:`~.policy.Policy`. What the sizing and the refit
+phases make of an entry are frozen records (:mod:`.records`: :class:`~.records.
+SizingOutcome`, :class:`~.records.RefitOutcome`) on its
+:class:`~.results.CandidateResult`, made once by their phase and read by the later ones:
 
 1. **Baseline** (:func:`_baseline`): the paper's model (one parameter set, z_ba per
    direction, rho1 = rho2 = 0, q = x1 + x2), identified by
