@@ -171,8 +171,14 @@ def above_limit(row: dict) -> bool | None:
     return None if tol is None else bool(row["beyond_to_noise"] ** 2 > tol)
 
 
+def hidden_of(row: dict) -> list[str]:
+    """Every effect a row's set hides: its first, then a compound set's others."""
+    return [row["hidden"], *(e["effect"] for e in row.get("also", []))]
+
+
 def summary(rows: list[dict]) -> dict:
     null = [r for r in rows if r["hidden"] == "none"]
+    compound = [r for r in rows if r.get("also")]
     cat = [r for r in rows if r["hidden"] not in ("none", "uncatalogued")]
     unc = [r for r in rows if r["hidden"] == "uncatalogued"]
     named = [r for r in rows if r["named"]]
@@ -203,6 +209,10 @@ def summary(rows: list[dict]) -> dict:
             sum(not r["catalogue_form"] for r in cat)),
         "uncatalogued_unexplained": _rate(sum(r["outcome"] == UNEXPLAINED for r in unc),
                                           len(unc)),
+        # Compound sets (version 2) are filed under their first effect above; here, how
+        # many of them had every hidden effect named.
+        "compound_all_named": _rate(
+            sum(set(hidden_of(r)) <= set(r["named"]) for r in compound), len(compound)),
         "excess_halved_where_named": _rate(
             sum((r["excess_removed"] or 0.0) >= 0.5 for r in named), len(named)),
         "detection_vs_effect_to_noise": detection_bins(rows),
@@ -252,7 +262,7 @@ def print_summary(rows: list[dict], s: dict) -> None:
     for k in ("null_false_positives", "null_unexplained", "wrong_name_first", "wrong_name_any",
               "right_first", "right_first_above_limit", "flagged_below_limit",
               "right_first_catalogue_form", "right_first_other_form",
-              "uncatalogued_unexplained", "excess_halved_where_named"):
+              "uncatalogued_unexplained", "compound_all_named", "excess_halved_where_named"):
         print(f"- {k.replace('_', ' ')}: {_pct(s[k])}")
     print("\nDetection (right first: sets hiding a catalogue entry; flagged: any verdict "
           "but adequate, uncatalogued sets included):\n")
