@@ -67,23 +67,24 @@ def test_fast_cpu_loops_warns_when_late_and_leaves_a_users_backend_options(monke
         xla_flags.fast_cpu_loops(-1)
 
 
+def _flags_after(call: str, flags: str) -> str:
+    """What ``ss.<call>`` returns and leaves in XLA_FLAGS, in a fresh process that starts
+    with ``flags``."""
+    code = f"import os, stickslip_jax as ss; ok = ss.{call}; print(ok, os.environ['XLA_FLAGS'])"
+    env = {**os.environ, "XLA_FLAGS": flags}
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, timeout=120, check=True).stdout.strip()
+
+
 def test_fast_cpu_loops_sets_the_threshold_in_a_fresh_process():
-    code = ("import os, stickslip_jax as ss; ok = ss.fast_cpu_loops(2048); "
-            "print(ok, os.environ['XLA_FLAGS'])")
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                         text=True, timeout=120, check=True).stdout.strip()
+    out = _flags_after("fast_cpu_loops(2048)", "--xla_force_host_platform_device_count=2")
     assert out == ("True --xla_force_host_platform_device_count=2 "
                    "--xla_cpu_experimental_ynn_fusion_type= "
                    "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=2048")
 
 
 def test_device_side_gpu_loops_adds_both_options_and_keeps_a_users_own():
-    code = ("import os, stickslip_jax as ss; ok = ss.device_side_gpu_loops(); "
-            "print(ok, os.environ['XLA_FLAGS'])")
-    env = {**os.environ, "XLA_FLAGS": "--xla_gpu_graph_min_graph_size=5"}
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                         text=True, timeout=120, check=True).stdout.strip()
+    out = _flags_after("device_side_gpu_loops()", "--xla_gpu_graph_min_graph_size=5")
     assert out == ("True --xla_gpu_graph_min_graph_size=5 --xla_gpu_enable_command_buffer="
                    "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,CONDITIONAL,WHILE")
 

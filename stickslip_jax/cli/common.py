@@ -49,13 +49,14 @@ def use_all_cpu_cores() -> None:
     add_xla_flag("xla_force_host_platform_device_count", n or 1)
 
 
-def fast_cpu_loops_quietly() -> None:
-    """:func:`~stickslip_jax.xla_flags.fast_cpu_loops`, without its warning when JAX has
-    already started (a command called in-process, e.g. by the tests)."""
+def loop_flags_quietly() -> None:
+    """:func:`~stickslip_jax.xla_flags.fast_cpu_loops` and
+    :func:`~stickslip_jax.xla_flags.device_side_gpu_loops`, without their warning when
+    JAX has already started (a command called in-process, e.g. by the tests)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fast_cpu_loops()
-    device_side_gpu_loops()
+        device_side_gpu_loops()
 
 
 def setup_jax(*, all_cpu_cores: bool = False) -> None:
@@ -70,7 +71,7 @@ def setup_jax(*, all_cpu_cores: bool = False) -> None:
     set ``STICKSLIP_CACHE_DIR=off`` to disable it. ``all_cpu_cores``: see
     :func:`use_all_cpu_cores` (for batched commands).
     """
-    fast_cpu_loops_quietly()
+    loop_flags_quietly()
     if all_cpu_cores:
         use_all_cpu_cores()
     if "OPENBLAS_NUM_THREADS" not in os.environ:

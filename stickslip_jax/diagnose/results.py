@@ -75,20 +75,23 @@ _NOT_REFITTED = RefitOutcome()
 """What :class:`CandidateResult`'s refit properties read when it was not refitted."""
 
 
-def _from_sizing(name: str) -> property:
-    """A read-only property giving the entry's :attr:`~CandidateResult.sizing`'s
-    ``name``."""
+def _from_record(record: str, name: str, absent=None) -> property:
+    """A read-only property giving ``name`` of the entry's record ``record``
+    (``sizing`` or ``refit``); ``absent``'s when that record is None."""
     def get(self):
-        return getattr(self.sizing, name)
-    return property(get, doc=f"Its sizings' ``{name}`` (:class:`~.records.SizingOutcome`).")
+        return getattr(getattr(self, record) or absent, name)
+    kind = {"sizing": "SizingOutcome", "refit": "RefitOutcome"}[record]
+    return property(get, doc=f"Its {record}'s ``{name}`` (:class:`~.records.{kind}`).")
+
+
+def _from_sizing(name: str) -> property:
+    """:func:`_from_record` of the sizings."""
+    return _from_record("sizing", name)
 
 
 def _from_refit(name: str) -> property:
-    """A read-only property giving the entry's :attr:`~CandidateResult.refit`'s ``name``
-    (:data:`_NOT_REFITTED`'s when not refitted)."""
-    def get(self):
-        return getattr(self.refit or _NOT_REFITTED, name)
-    return property(get, doc=f"Its refit's ``{name}`` (:class:`~.records.RefitOutcome`).")
+    """:func:`_from_record` of the refit (:data:`_NOT_REFITTED`'s when not refitted)."""
+    return _from_record("refit", name, _NOT_REFITTED)
 
 
 @dataclass

@@ -167,7 +167,7 @@ from .effects import (
     SensorLowPass,
     VariantElastoPlastic,
 )
-from .truth import draw_pi_grid, draw_truth
+from .truth import draw_pi_grid, draw_truth, log_uniform
 
 DEV_SEED = 20261126
 """The development split: develop, tune and debug on it freely."""
@@ -513,10 +513,10 @@ def _is_compound(seed: int, index: int, design: SplitDesign) -> bool:
 
 def _draw_effect(rng: np.random.Generator, f: Form) -> tuple[float, dict]:
     """A strength (signed where the form is) and the other parameters of form ``f``."""
-    strength = _log_uniform(rng, f.low, f.high)
+    strength = log_uniform(rng, f.low, f.high)
     if f.signed and rng.uniform() < 0.5:
         strength = -strength
-    return strength, {k: _log_uniform(rng, lo, hi) for k, (lo, hi) in f.others.items()}
+    return strength, {k: log_uniform(rng, lo, hi) for k, (lo, hi) in f.others.items()}
 
 
 def _second_effect(rng: np.random.Generator, first: str) -> dict:
@@ -531,10 +531,6 @@ def _second_effect(rng: np.random.Generator, first: str) -> dict:
             "strength": strength, "others": others}
 
 
-def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-
-
 def draw_set(seed: int, index: int, design: SplitDesign = V1) -> SetSpec:
     """The spec of set ``index`` of the split with seed ``seed`` drawn by ``design``
     (deterministic; version 1's draws are those before version 2 existed)."""
@@ -543,7 +539,7 @@ def draw_set(seed: int, index: int, design: SplitDesign = V1) -> SetSpec:
     effect = _effect_at(seed, index, design.block)
     rng = np.random.default_rng([seed, index, 2])
     truth, factors = draw_truth(rng)
-    noise = _log_uniform(rng, *NOISE_RANGE_M)
+    noise = log_uniform(rng, *NOISE_RANGE_M)
     rec_seed = int(rng.integers(2**31))
     forms = forms_of(effect)
     f = forms[int(rng.integers(len(forms)))]

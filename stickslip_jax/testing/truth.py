@@ -20,6 +20,11 @@ PI_TAIL_DECAY_V = 12.0
 """Decay [V] of the identification truth's PI tail weights, ``∝ exp(−r/12 V)``."""
 
 
+def log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    """A draw uniform in log between ``lo`` and ``hi`` (positive)."""
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
 def pi_weights(linear: float, tail_total: float, thresholds, decay_V: float) -> list[float]:
     """PI weights [m/V]: ``linear`` on the zero threshold, then ``tail_total`` spread over
     the other thresholds [V] as ``exp(−r/decay_V)``."""
@@ -93,21 +98,18 @@ def draw_pi_grid(rng: np.random.Generator, params: dict, factors: dict) -> tuple
     base = np.asarray(params["pi_thresholds"], dtype=float)
     kind = PI_GRIDS[int(rng.integers(len(PI_GRIDS)))]
 
-    def log_uniform(lo, hi):
-        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-
     if kind == "sparse":
         n = int(rng.integers(PI_GRID_RANGES["sparse_operators"][0],
                              PI_GRID_RANGES["sparse_operators"][1] + 1))
-        factor = log_uniform(*PI_GRID_RANGES["sparse_top"])
+        factor = log_uniform(rng, *PI_GRID_RANGES["sparse_top"])
         thresholds = np.concatenate([[0.0], np.sort(rng.uniform(0.0, factor * base[-1], n - 1))])
     elif kind == "dense":
         n = int(rng.integers(PI_GRID_RANGES["dense_operators"][0],
                              PI_GRID_RANGES["dense_operators"][1] + 1))
-        factor = log_uniform(*PI_GRID_RANGES["dense_top"])
+        factor = log_uniform(rng, *PI_GRID_RANGES["dense_top"])
         thresholds = np.linspace(0.0, factor * base[-1], n)
     else:
-        factor = log_uniform(*PI_GRID_RANGES["scaled"])
+        factor = log_uniform(rng, *PI_GRID_RANGES["scaled"])
         thresholds = base * factor
     p = dict(params)
     p["pi_thresholds"] = [float(r) for r in thresholds]
@@ -120,8 +122,7 @@ def draw_truth(rng: np.random.Generator) -> tuple[dict, dict[str, float]]:
     """A truth drawn around :func:`identification_truth` (:data:`TRUTH_RANGES`):
     ``(params, factors)``, the parameter dictionary and the factor drawn per entry."""
     p = identification_truth()
-    factors = {k: float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
-               for k, (lo, hi) in TRUTH_RANGES.items()}
+    factors = {k: log_uniform(rng, lo, hi) for k, (lo, hi) in TRUTH_RANGES.items()}
     for k in ("Mp", "Dp", "Kp", "Ds", "rho0", "z_ba_forward", "z_ba_backward"):
         p[k] = float(p[k] * factors[k])
     p["z_ba"] = p["z_ba_forward"]
