@@ -46,7 +46,7 @@ from stickslip_jax.compilation_cache import (  # noqa: E402
     use_compilation_cache,
 )
 from stickslip_jax.diagnose import Verdict, diagnose  # noqa: E402
-from stickslip_jax.diagnose.report import diagnosis_dict  # noqa: E402
+from stickslip_jax.diagnose.report import diagnosis_dict, form_found  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
 
@@ -140,6 +140,9 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
         # Each round's entries (scores, sizings, refits, status) and the counted work:
         # enough to replay a change of the refit rules on this set offline.
         "candidates_by_round": diagnosis_dict(d)["candidates_by_round"],
+        # What each accepted entry's refit found: its parameters and form in words.
+        "accepted": [{"name": c.name, "params": c.params, "form": form_found(c.name, c.params)}
+                     for c in d.accepted],
         "passes": d.config.record()["passes"] if d.config is not None else None,
         "work_budget": d.work,
     }

@@ -93,6 +93,29 @@ class RoundStart:
     unknown."""
 
 
+AT_BOUND_SHARE = 1e-3
+"""A ``nonneg`` weight below this share of its θ unit (the entry's first-order strength)
+sits on its bound, 0: a tenth of where a spectrum's weights start
+(:data:`~.catalogue.creep.START_SHARE`), so that only a weight the fit drove down,
+not one it left alone, counts as on it."""
+
+
+def counted_parameters(specs: dict, fitted: Actuator) -> int:
+    """The parameters a refit of ``specs`` spent, for the criterion's penalty: every
+    value, except ``nonneg`` weights on their bound (:data:`AT_BOUND_SHARE`): under a
+    non-negativity constraint the degrees of freedom of a least-squares fit are the
+    weights it leaves positive (a projection on a convex cone), so a spectrum pays
+    for the weights it uses, not for its grid."""
+    k = 0
+    for s in specs.values():
+        value = np.asarray(s.getter(fitted))
+        if s.kind == "nonneg":
+            k += int(np.sum(value > AT_BOUND_SHARE * s.scale))
+        else:
+            k += int(np.size(value))
+    return k
+
+
 def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
                  fitted: Actuator, out, specs: dict, t0: float) -> None:
     """Store the refit ``out`` (``fitted``, the entry's ``specs``) of ``res``, started at
@@ -100,7 +123,7 @@ def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
     problem = setup.problem
     n_obs = problem.n_obs
     rss_new = float(out.cost_end)
-    k = int(sum(np.size(np.asarray(s.getter(fitted))) for s in specs.values()))
+    k = counted_parameters(specs, fitted)
     sig = problem.significance
     held_out, predicts = res.held_out, res.predicts  # an earlier refit's, if unchecked
     if out.jacobian is not None and out.residual is not None and setup.regimes:

@@ -11,6 +11,7 @@ import numpy as np
 from ..files import atomic_write_text, check_output_path
 from ..identify.residuals import periodogram_psd
 from ..plots import subplots
+from .catalogue import NAMES, candidate
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
 from .records import RefitOutcome, SizingOutcome
@@ -46,8 +47,15 @@ def named_line(c) -> str:
     share = (f"partial answer: {100 * c.explained:.0f} % of the excess; the rest is "
              f"structured, " if c.partial else "")
     params = ", ".join(f"{k}={v:.4g}" for k, v in c.params.items())
+    form = form_found(c.name, c.params)
     return (f"{c.name} ({share}removes {c.removed_nm:.3g} nm RMS, ΔBIC "
-            f"{c.criterion_delta:.1f}; {params})")
+            f"{c.criterion_delta:.1f}; {params})" + (f"; {form}" if form else ""))
+
+
+def form_found(name: str, params: dict) -> str:
+    """The form entry ``name``'s refit found, in words (empty when its parameters say
+    it, or for a name not in the catalogue: the learned correction)."""
+    return candidate(name).describe(params) if name in NAMES else ""
 
 
 def unexplained_line(d: Diagnosis) -> str:
@@ -150,7 +158,7 @@ def entry_from_record(c: dict, unrecorded_converged: bool = True) -> CandidateRe
 def diagnosis_dict(d: Diagnosis) -> dict:
     """The content of ``diagnosis.json``."""
     missing = [{"name": c.name, "partial": c.partial, "summary": named_line(c),
-                "evidence": _evidence(c),
+                "evidence": _evidence(c), "form": form_found(c.name, c.params),
                 "params": c.params, "nrmse_before_percent": _percent(c.nrmse_before),
                 "nrmse_after_percent": _percent(c.nrmse_after),
                 "criterion_delta": c.criterion_delta}
@@ -237,6 +245,12 @@ def write_diagnosis(d: Diagnosis, out_dir: str | Path, *, force: bool = False,
             check_output_path(p, force=force, inputs=inputs)
             fn(d, p)
             figs[name] = p
+        forms = [c for c in d.accepted if c.name in NAMES]
+        if forms:
+            p = fig_dir / "forms_found.png"
+            check_output_path(p, force=force, inputs=inputs)
+            if plot_forms(forms, p):
+                figs["forms_found"] = p
         written.update(figs)
     report = out_dir / "report.md"
     check_output_path(report, force=force, inputs=inputs)
@@ -272,6 +286,8 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
             lines.append(f"| {name} | {m['nrmse_before_percent']:.4f} % | "
                          f"{m['nrmse_after_percent']:.4f} % | {removed} | "
                          f"{m['criterion_delta']:.1f} | {params} |")
+            if m.get("form"):
+                lines.append(f"|  | {m['form']} | | | | |")
             ind = m["evidence"]["indistinguishable_from"]
             if ind:
                 lines.append(f"|  | indistinguishable from: {', '.join(ind)} | | | | |")
@@ -337,6 +353,23 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
     for name, p in figs.items():
         lines += [f"![{name}]({p.relative_to(out_dir).as_posix()})", ""]
     return "\n".join(lines)
+
+
+def plot_forms(accepted, path) -> bool:
+    """The form each accepted entry's refit found (:meth:`~.catalogue.base.
+    CatalogueEntry.plot_form`: the creep spectrum, ...), one panel each; False, and
+    nothing written, when none of them has a figure."""
+    fig, axes = subplots(1, len(accepted), figsize=(4.2 * len(accepted), 3.4),
+                         squeeze=False)
+    drawn = [candidate(c.name).plot_form(ax, c.params)
+             for c, ax in zip(accepted, axes[0], strict=True)]
+    for ax, done in zip(axes[0], drawn, strict=True):
+        if not done:
+            ax.set_visible(False)
+    if any(drawn):
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+    return any(drawn)
 
 
 def plot_residual_map(d: Diagnosis, path):

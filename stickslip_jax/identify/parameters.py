@@ -8,6 +8,12 @@ well-scaled coordinate ``θ`` that is 0 at the start value:
 - ``logit``: quantities in (0, 1) (``zba_ratio``): ``value = sigmoid(θ + logit(start))``.
 - ``softplus``: non-negative quantities that may start at 0 (``rho1``, ``rho2``):
   ``value = scale·softplus(θ + θ0)`` with the scale of the start (or a default).
+- ``nonneg``: non-negative weights of a spectrum, some started small beside others:
+  ``value = start·softplus(θ + θ0)/softplus(θ0)``, θ0 = softplus⁻¹(1): each on its own
+  start's θ unit, nearly linear while it grows, reaching its bound 0 smoothly (the
+  softplus's flat tail; a weight at 0 restarts at 2e-9 of the spec's ``scale``,
+  which also says what counts as "on the bound", :func:`~stickslip_jax.diagnose.
+  refit.counted_parameters`).
 - ``pi_cumlog``: PI weights with the loop kept monotone: the partial sums
   ``s_k = Σ_{i≤k} w_i`` stay positive as ``s_k = s_k0·exp(θ_k)``, ``w = diff(s)``.
 
@@ -117,9 +123,10 @@ class ParameterSpec:
     law's own parameters are built in through its :attr:`parameters`).
 
     ``getter`` selects the leaf in the :class:`Actuator`; ``kind`` is one of ``log``,
-    ``softplus`` (non-negative, may start at 0), ``linear`` (signed:
-    ``value = start + scale·θ``); ``scale`` sets the θ unit of ``linear`` and
-    ``softplus`` parameters [parameter unit]; ``unit`` is for reports. ``floor`` (``log``
+    ``softplus`` (non-negative, may start at 0), ``nonneg`` (non-negative, θ unit its
+    start), ``linear`` (signed: ``value = start + scale·θ``); ``scale`` sets the θ
+    unit of ``linear`` and ``softplus`` parameters and the size of a ``nonneg`` one's
+    spectrum [parameter unit]; ``unit`` is for reports. ``floor`` (``log``
     only; 0: none) [parameter unit]: the value is ``max(start·e^θ, floor)``, for a
     quantity the data cannot resolve below it and whose derivatives vanish on the way
     to 0 (a fit walks such a one off the scale, and no later fit can bring it back;
@@ -151,6 +158,16 @@ class FreeParameter:
             else -20.0
         return scale, theta0
 
+    def _nonneg_scale(self) -> tuple[float, float]:
+        """``(scale, θ0)`` of the ``nonneg`` kind: value = scale·softplus(θ + θ0), the
+        weight's own start as its scale (θ0 = softplus⁻¹(1)), so that a weight started
+        small moves on its own size's θ unit, nearly linearly until it nears 0; a
+        weight a fit left on its bound (0) restarts at 2e-9 of the spec's scale."""
+        start = float(self.start)
+        if start > 0:
+            return start, float(np.log(np.expm1(1.0)))
+        return float(self.scale), -20.0
+
     def to_physical(self, theta, *, xp=jnp):
         """Physical value(s) from the slice ``theta`` of the parameter vector; ``xp`` is
         ``jax.numpy`` (traceable) or ``numpy`` (for a concrete θ: nothing compiled)."""
@@ -178,6 +195,10 @@ class FreeParameter:
             value = start + self.scale * theta
         elif self.kind == "softplus":
             scale, theta0 = self._softplus_scale()
+            value = scale * (jax.nn.softplus(theta + theta0) if xp is jnp
+                             else np.logaddexp(theta + theta0, 0.0))
+        elif self.kind == "nonneg":
+            scale, theta0 = self._nonneg_scale()
             value = scale * (jax.nn.softplus(theta + theta0) if xp is jnp
                              else np.logaddexp(theta + theta0, 0.0))
         elif self.kind == "pi_cumlog":
@@ -208,6 +229,9 @@ class FreeParameter:
             return np.diag(np.full(theta.size, float(self.scale)))
         if self.kind == "softplus":
             scale, theta0 = self._softplus_scale()
+            return np.diag(scale * _sigmoid(theta + theta0, np))
+        if self.kind == "nonneg":
+            scale, theta0 = self._nonneg_scale()
             return np.diag(scale * _sigmoid(theta + theta0, np))
         if self.kind == "pi_cumlog":
             # w_i = s_i − s_(i−1) with s_j = s0_j·exp(θ_j): ∂w_i/∂θ_j = s_j (δ_ij − δ_(i−1)j)
@@ -276,6 +300,10 @@ class ParameterMap(eqx.Module):
                                  f"above it, got kind {kind!r}, start {value}, floor {floor}")
             if kind == "pi_cumlog":
                 value = monotone_pi_start(value)
+            if kind == "nonneg" and (value.size != 1 or float(value) < 0
+                                     or not (scale or 0) > 0):
+                raise ValueError(f"{name}: a nonneg weight is a scalar starting at 0 or "
+                                 f"above with a positive scale, got {value} (scale {scale})")
             if kind == "logit" and not 0 < float(value) < 1:
                 raise ValueError(f"{name} must start inside (0, 1) to be fitted, got {value}")
             free.append(FreeParameter(name, kind, int(value.size), value, scale, floor))

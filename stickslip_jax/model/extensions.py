@@ -13,7 +13,8 @@ Input stages (voltage reaching the piezo):
     :class:`ParallelInputs` (stages side by side).
 Extensions (own states and additive terms):
     :class:`Creep` (first-order creep of the stroke), :class:`RateDependentStroke`
-    (stroke lag proportional to the voltage rate), :class:`StructuralMode` (a mount
+    (stroke lag proportional to the voltage rate), :class:`CreepSpectrum` (creep as a
+    Prony series on a fixed grid of time constants), :class:`StructuralMode` (a mount
     resonance seen by the sensor), :class:`PositionRipple` (a force periodic in
     slider position, no catalogue entry: used to test the honest "unexplained"),
     :class:`LearnedForce` (the data-driven correction: sparse regression over a
@@ -251,6 +252,46 @@ class Creep(_FirstOrder):
 
     def rate(self, state, core: CoreState, drive: DriveContext):
         return (self.gain * core.u - state) / self.tau
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(stroke=jnp.sum(state))
+
+
+class CreepSpectrum(AbstractExtension):
+    """Creep as a Prony series: first-order creep terms ``τ_i·ċ_i = g_i·u − c_i`` on a
+    fixed grid of time constants, stroke += ``Σ c_i``; with non-negative weights
+    ``g_i`` it is any creep whose step response rises monotonically (a logarithmic
+    or fractional law, several modes), the weights being its relaxation spectrum.
+
+    The weights are a tuple of scalars, so that a fit can free each one
+    (``eqx.tree_at`` addresses tuple members, not a vector's elements); the time
+    constants are the fixed grid. At rest ``c_i = g_i·u``.
+
+    Attributes: ``gains`` g_i [m/V], ``taus`` τ_i [s].
+    """
+
+    gains: tuple
+    taus: Float[Array, " k"]
+
+    def __init__(self, gains, taus):
+        self.taus = _f(taus)
+        self.gains = tuple(_f(g) for g in gains)
+        if self.taus.ndim != 1 or len(self.gains) != self.taus.size:
+            raise ValueError(f"CreepSpectrum needs one gain per time constant, got "
+                             f"{len(self.gains)} gains and taus of shape {self.taus.shape}")
+
+    @property
+    def n_states(self) -> int:
+        return len(self.gains)
+
+    def _weights(self):
+        return jnp.stack(self.gains)
+
+    def initial_state(self, u0):
+        return self._weights() * _f(u0)
+
+    def rate(self, state, core: CoreState, drive: DriveContext):
+        return (self._weights() * core.u - state) / self.taus
 
     def terms(self, state, core, drive):
         return ExtensionTerms(stroke=jnp.sum(state))

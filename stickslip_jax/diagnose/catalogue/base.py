@@ -83,6 +83,16 @@ class CatalogueEntry(abc.ABC):
         its parametrisation reaches)."""
         return ""
 
+    def describe(self, params: dict[str, float]) -> str:
+        """The form the refit found, in words, from its refitted ``params``; empty (the
+        default) when the parameters say it themselves."""
+        return ""
+
+    def plot_form(self, ax, params: dict[str, float]) -> bool:
+        """Draw the form the refit found (its refitted ``params``) on the axes ``ax``;
+        False (the default) when the entry has no figure of it."""
+        return False
+
     def needs(self, recordings: Sequence) -> str | None:
         """Why the effect cannot show in ``recordings``; None when it can."""
         return None
