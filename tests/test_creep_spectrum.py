@@ -95,7 +95,7 @@ def test_the_entry_starts_at_the_probes_first_order_creep_and_pays_for_weights_i
     # The report's words for the form found.
     params = {n: float(s.getter(fitted)) for n, s in specs.items()}
     text = entry.describe(params)
-    assert "creep spectrum" in text and "from 2.45 to 50 ms" in text and "(3 of 9)" in text
+    assert "creep spectrum" in text and "from 2.45 to 50 ms" in text and "(3 of 12)" in text
     # A first-order strength of the wrong sign starts every weight small, none negative.
     low, _ = entry.attach(act, -strength, probe)
     assert np.allclose([float(g) for g in low.extensions[-1].gains], START_SHARE * strength)
@@ -106,8 +106,8 @@ def test_the_report_says_and_draws_the_spectrum_found(tmp_path):
 
     from stickslip_jax.diagnose.report import form_found, plot_forms
 
-    params = {weight_name(t): w for t, w in zip(SPECTRUM_TAUS, (0, 0, 3e-10, 1e-10, 0, 0, 0,
-                                                              2e-11, 0), strict=True)}
+    weights = (0, 0, 3e-10, 1e-10, 0, 0, 0, 2e-11) + (0,) * (len(SPECTRUM_TAUS) - 8)
+    params = {weight_name(t): w for t, w in zip(SPECTRUM_TAUS, weights, strict=True)}
     assert form_found("creep", params).startswith("creep spectrum: total gain 4.2e-10 m/V")
     assert form_found("learned_force", params) == ""
     assert form_found("sensor_delay", {"delay": 1e-6}) == ""

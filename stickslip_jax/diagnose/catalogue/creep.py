@@ -23,12 +23,15 @@ from .slots import carry_extensions, ext, first_order_probes
 TAUS = (1.5e-3, 4e-3, 10e-3, 30e-3)
 """Probed time constants [s]: slower than the rate lag's (:mod:`.slots`)."""
 
-SPECTRUM_TAUS = (1.5e-3, 2.45e-3, 4e-3, 6.3e-3, 10e-3, 17e-3, 30e-3, 50e-3, 80e-3)
+SPECTRUM_TAUS = (1.5e-3, 2.45e-3, 4e-3, 6.3e-3, 10e-3, 17e-3, 30e-3, 50e-3, 80e-3, 130e-3,
+                 210e-3, 340e-3)
 """The refit's grid of time constants [s]: the probes' with their geometric means
-between them and two above (a ratio of about 1.6, at which one first-order creep
-between two grid points is matched to 0.05 % of its amplitude by its neighbours),
-from the rate lag's upper end to about the longest recording (100 ms in the paper's
-protocol), beyond which creep cannot be told from a gain and a drift."""
+between them and more at the same ratio above (about 1.6, at which one first-order
+creep between two grid points is matched to 0.05 % of its amplitude by its
+neighbours), from the rate lag's upper end (:mod:`.slots`: a faster relaxation is
+the rate lag's time scale) to about three times the longest recording (100 ms in the
+paper's protocol): a slower mode still bends a recording's drift, and one far slower
+is a gain and a linear drift, which the baseline and the sensor's drift take."""
 
 START_SHARE = 0.01
 """Each weight but the probe's starts at this share of the first-order strength:
