@@ -8,12 +8,11 @@ well-scaled coordinate ``θ`` that is 0 at the start value:
 - ``logit``: quantities in (0, 1) (``zba_ratio``): ``value = sigmoid(θ + logit(start))``.
 - ``softplus``: non-negative quantities that may start at 0 (``rho1``, ``rho2``):
   ``value = scale·softplus(θ + θ0)`` with the scale of the start (or a default).
-- ``nonneg``: non-negative weights of a spectrum, some started small beside others:
-  ``value = start·softplus(θ + θ0)/softplus(θ0)``, θ0 = softplus⁻¹(1): each on its own
-  start's θ unit, nearly linear while it grows, reaching its bound 0 smoothly (the
-  softplus's flat tail; a weight at 0 restarts at 2e-9 of the spec's ``scale``,
-  which also says what counts as "on the bound", :func:`~stickslip_jax.diagnose.
-  refit.counted_parameters`).
+- ``nonneg``: the softplus transform for the weights of a spectrum, some started
+  small beside others (each on its own start's θ unit, nearly linear while it grows,
+  reaching its bound 0 smoothly); its own kind because a refit's criterion counts such
+  a weight only off its bound, judged against the spec's ``scale``
+  (:func:`~stickslip_jax.diagnose.refit.counted_parameters`).
 - ``pi_cumlog``: PI weights with the loop kept monotone: the partial sums
   ``s_k = Σ_{i≤k} w_i`` stay positive as ``s_k = s_k0·exp(θ_k)``, ``w = diff(s)``.
 
@@ -152,21 +151,12 @@ class FreeParameter:
     floor: float = 0.0  # least value of a log kind (ParameterSpec)
 
     def _softplus_scale(self) -> tuple[float, float]:
-        """``(scale, θ0)`` of the softplus kind: value = scale·softplus(θ + θ0)."""
+        """``(scale, θ0)`` of the softplus and nonneg kinds: value = scale·softplus(θ + θ0),
+        the start as its scale (θ0 = softplus⁻¹(1)), or the spec's from 0 (θ0 = −20)."""
         scale = float(self.start) if float(self.start) > 0 else (self.scale or 1.0)
         theta0 = np.log(np.expm1(float(self.start) / scale)) if float(self.start) > 0 \
             else -20.0
         return scale, theta0
-
-    def _nonneg_scale(self) -> tuple[float, float]:
-        """``(scale, θ0)`` of the ``nonneg`` kind: value = scale·softplus(θ + θ0), the
-        weight's own start as its scale (θ0 = softplus⁻¹(1)), so that a weight started
-        small moves on its own size's θ unit, nearly linearly until it nears 0; a
-        weight a fit left on its bound (0) restarts at 2e-9 of the spec's scale."""
-        start = float(self.start)
-        if start > 0:
-            return start, float(np.log(np.expm1(1.0)))
-        return float(self.scale), -20.0
 
     def to_physical(self, theta, *, xp=jnp):
         """Physical value(s) from the slice ``theta`` of the parameter vector; ``xp`` is
@@ -193,12 +183,8 @@ class FreeParameter:
             value = _sigmoid(theta + xp.log(start / (1.0 - start)), xp)
         elif self.kind == "linear":
             value = start + self.scale * theta
-        elif self.kind == "softplus":
+        elif self.kind in ("softplus", "nonneg"):
             scale, theta0 = self._softplus_scale()
-            value = scale * (jax.nn.softplus(theta + theta0) if xp is jnp
-                             else np.logaddexp(theta + theta0, 0.0))
-        elif self.kind == "nonneg":
-            scale, theta0 = self._nonneg_scale()
             value = scale * (jax.nn.softplus(theta + theta0) if xp is jnp
                              else np.logaddexp(theta + theta0, 0.0))
         elif self.kind == "pi_cumlog":
@@ -227,11 +213,8 @@ class FreeParameter:
             return np.diag(s * (1.0 - s))
         if self.kind == "linear":
             return np.diag(np.full(theta.size, float(self.scale)))
-        if self.kind == "softplus":
+        if self.kind in ("softplus", "nonneg"):
             scale, theta0 = self._softplus_scale()
-            return np.diag(scale * _sigmoid(theta + theta0, np))
-        if self.kind == "nonneg":
-            scale, theta0 = self._nonneg_scale()
             return np.diag(scale * _sigmoid(theta + theta0, np))
         if self.kind == "pi_cumlog":
             # w_i = s_i − s_(i−1) with s_j = s0_j·exp(θ_j): ∂w_i/∂θ_j = s_j (δ_ij − δ_(i−1)j)

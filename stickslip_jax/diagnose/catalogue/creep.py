@@ -97,5 +97,4 @@ class CreepEntry(CatalogueEntry):
         kept = taus[weights >= 0.1 * weights.max()]
         return (f"creep spectrum: total gain {total:.3g} m/V, centred at {centre * 1e3:.3g} ms, "
                 f"weights of at least a tenth of the largest from {kept[0] * 1e3:g} to "
-                f"{kept[-1] * 1e3:g} ms ({int(np.sum(weights >= 0.1 * weights.max()))} of "
-                f"{taus.size})")
+                f"{kept[-1] * 1e3:g} ms ({kept.size} of {taus.size})")
