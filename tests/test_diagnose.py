@@ -62,7 +62,15 @@ def test_names_the_hidden_effect_first(base, effect):
     recs, d = run(base, effect, fallback=False)
     assert d.accepted, f"nothing accepted for {effect}; rounds: {d.rounds}"
     assert d.accepted[0].name == effect
-    assert d.verdict is Verdict.AUGMENTED
+    # Augmented only when what is left is within the noise tolerance; else a partial
+    # answer that says what is left (the reduced refits here stop at 20 steps).
+    tol = d.significance["tolerance_chi2"]
+    if d.verdict is Verdict.AUGMENTED:
+        assert d.left is None and d.chi2_final <= 1 + tol
+    else:
+        assert d.verdict is Verdict.PARTLY_EXPLAINED, d.verdict
+        assert d.left["chi2_per_sample"] == pytest.approx(d.chi2_final)
+        assert d.left["beyond_tolerance_nm"] > 0 or d.left["recordings_beyond"]
     assert d.mismatch, "the baseline mismatch was not located"
     assert excess_removed(d, recs) >= 0.5
     assert d.accepted[0].criterion_delta < -10

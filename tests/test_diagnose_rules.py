@@ -415,15 +415,38 @@ def test_a_partial_answer_is_kept_when_nothing_explains_and_only_then():
     assert none is None
 
 
-def test_the_verdict_says_partly_explained_beside_a_kept_entry():
+def test_the_verdict_says_augmented_only_within_the_noise_tolerance():
     from stickslip_jax.diagnose.results import Verdict
     from stickslip_jax.diagnose.run import _verdict
 
     kept = _refitted("creep", 0.6)
-    assert _verdict(True, [kept]) is Verdict.PARTLY_EXPLAINED
-    assert _verdict(True, []) is Verdict.UNEXPLAINED
-    assert _verdict(False, [kept]) is Verdict.AUGMENTED
-    assert _verdict(False, []) is Verdict.BASELINE_ADEQUATE
+    assert _verdict(True, [kept], within=False) is Verdict.PARTLY_EXPLAINED
+    assert _verdict(True, [], within=False) is Verdict.UNEXPLAINED
+    assert _verdict(False, [kept], within=True) is Verdict.AUGMENTED
+    assert _verdict(False, [], within=True) is Verdict.BASELINE_ADEQUATE
+    # An entry that removed most of the excess but leaves the residual beyond the
+    # tolerance (no structure the fallback would chase) is a partial answer.
+    assert _verdict(False, [kept], within=False) is Verdict.PARTLY_EXPLAINED
+
+
+def test_what_a_partial_answer_leaves_is_said_in_nm_and_by_recording():
+    from types import SimpleNamespace
+
+    from stickslip_jax.diagnose.report import _left_markdown
+    from stickslip_jax.diagnose.run import _left
+
+    sig = _significance()  # σ = 1 nm everywhere
+    chi2_rec = np.array([1.0, 1.0, 1.0, 5.0])  # one recording left with (e/σ)² 5
+    analyses = [SimpleNamespace(recording=f"r{i}", chi2=c, flagged=False)
+                for i, c in enumerate(chi2_rec)]
+    rss = float(np.sum(chi2_rec * N / 4))
+    left = _left(sig, rss, chi2_rec, analyses)
+    assert left["chi2_per_sample"] == pytest.approx(2.0)
+    assert left["recordings_beyond"] == ["r3"]
+    # Beyond 1 + τ: √((2 − 1 − τ)) nm RMS over the samples.
+    assert left["beyond_tolerance_nm"] == pytest.approx(np.sqrt(1 - sig.tolerance))
+    text = "\n".join(_left_markdown(left))
+    assert "What is left" in text and "r3" in text and "partial answer" in text
 
 
 def test_a_sub_microsecond_drive_low_pass_is_attached_at_its_measured_lag():

@@ -146,6 +146,10 @@ def diagnose_command(
                f"{100 * result.nrmse_final.mean():.4f} %")
     for c in result.accepted:
         typer.echo(f"  named: {named_line(c)}")
+    if result.left is not None:
+        typer.echo(f"  left: mean (e/σ)² {result.left['chi2_per_sample']:.3f}, beyond the "
+                   f"tolerance 1 + {result.left['tolerance_chi2']:.3g} by "
+                   f"{result.left['beyond_tolerance_nm']:.3g} nm RMS (a partial answer)")
     if result.unexplained is not None:
         typer.echo(f"  {unexplained_line(result)}")
     typer.echo(f"wrote {written['diagnosis']} and {written['report']}")

@@ -43,6 +43,11 @@ class DiagnoseConfig:
     identify_max_steps: int = 60
     """Steps per identification step at most: the baseline's identification and each
     re-identification with an entry attached (as ``stickslip identify``'s default)."""
+    refine_hysteresis: bool = True
+    """When the baseline is beyond the noise tolerance, refine its PI grid and keep the
+    refined one if that is within it (:mod:`.hysteresis_shape`)."""
+    refine_steps: int = 15
+    """Steps of that refinement's polish at most."""
     size_steps: int = 15
     """Steps of a sizing at most (an entry's 1-3 parameters, the baseline held or free
     to first order: :mod:`.sizing`)."""

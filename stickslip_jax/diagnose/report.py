@@ -91,6 +91,19 @@ def _per_recording(nrmse, analyses, numerical=None) -> list[dict]:
     return rows
 
 
+def _left_markdown(left: dict) -> list[str]:
+    """report.md's lines on what the accepted entries leave beyond the noise tolerance."""
+    where = ", ".join(f"{m['recording']} ({m['regime']}, {m['band_Hz'][0]:.0f}-"
+                      f"{m['band_Hz'][1]:.0f} Hz)" for m in left["where"])
+    return ["## What is left", "",
+            f"The accepted entries leave mean (e/σ)² {left['chi2_per_sample']:.3f}, beyond "
+            f"the tolerance 1 + {left['tolerance_chi2']:.3g} by "
+            f"{left['beyond_tolerance_nm']:.3g} nm RMS: they are a partial answer. "
+            f"Recordings beyond their own tolerance: "
+            f"{', '.join(left['recordings_beyond']) or 'none (the mean only)'}"
+            + (f"; worst: {where}." if where else "."), ""]
+
+
 UNCONVERGED_MARK = "†"
 """Marks, in report.md, a sizing's drop where that sizing stopped at its step cap."""
 
@@ -218,6 +231,8 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "work_budget": d.work,
         "timings_s": d.timings,
     }
+    if d.left is not None:
+        out["left"] = d.left
     if d.unexplained is not None:
         u = dict(d.unexplained)
         out["unexplained"] = u
@@ -294,6 +309,8 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
     else:
         lines.append("None accepted.")
     lines += ["", f"Criterion: {content['criterion']}.", ""]
+    if "left" in content:
+        lines += _left_markdown(content["left"])
     if "unexplained" in content:
         u = content["unexplained"]
         lines += ["## Unexplained residual", "",

@@ -25,14 +25,15 @@ class Verdict(enum.StrEnum):
     line print)."""
 
     AUGMENTED = "augmented"
-    """Catalogue entries were accepted and together explain the residual."""
+    """Catalogue entries were accepted and what they leave is within the noise
+    tolerance."""
     BASELINE_ADEQUATE = "baseline adequate"
     """The baseline's residual is at the noise level, or nothing structured is left."""
     UNEXPLAINED = "unexplained residual"
     """A structured residual remains and no entry was accepted."""
     PARTLY_EXPLAINED = "partly explained"
-    """Entries were accepted (at least one as a partial answer), and a structured
-    residual remains beside them."""
+    """Entries were accepted, and what is left beside them is beyond the noise
+    tolerance (:attr:`Diagnosis.left` says how far and where)."""
 
 
 class CandidateStatus(enum.StrEnum):
@@ -233,3 +234,8 @@ class Diagnosis:
     config: DiagnoseConfig | None = None
     """How it ran (:class:`~.config.DiagnoseConfig`: the policy, rounds, step caps, the
     work budget)."""
+    left: dict | None = None
+    """When entries were accepted and the final residual is beyond the noise tolerance
+    (verdict partly explained): its mean ``(e/σ)²`` against ``1 + tolerance``, the RMS
+    beyond the tolerance [nm], the recordings beyond their own tolerance, and where
+    (:func:`~.locate.mismatch_entries` of the final residual)."""

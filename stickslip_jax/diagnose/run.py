@@ -13,7 +13,10 @@ SizingOutcome`, :class:`~.records.RefitOutcome`) on its
    estimated from the data; :mod:`.problem`), the metric that every later comparison
    uses.
    The tolerance is set here (:func:`_significance`); a baseline within it is scored
-   for the record and the detection limits, and nothing is sized or named.
+   for the record and the detection limits, and nothing is sized or named. A baseline
+   beyond it has its PI grid refined (:mod:`.hysteresis_shape`, a threshold between
+   each pair); the refined one is the baseline when that brings it within the
+   tolerance (the loop's shape, not a missing effect), else the grid stays.
 2. **Locate** the mismatch per recording (:func:`_locate`, :mod:`.locate`).
 3. **Score** every catalogue entry by how well its signature matches the residual
    (:mod:`.scores`): a score (Lagrange-multiplier) test. With ``J_b`` the Jacobian of
@@ -68,7 +71,9 @@ SizingOutcome`, :class:`~.records.RefitOutcome`) on its
    structured residual remains that no entry explains, fit the data-driven
    correction (:class:`~stickslip_jax.model.extensions.LearnedForce`, sparse
    regression) and report it as ``unexplained`` with what it depends on; then the
-   :class:`~.results.Verdict` (:func:`_verdict`).
+   :class:`~.results.Verdict` (:func:`_verdict`): "augmented" only when what the
+   accepted entries leave is within the tolerance, else "partly explained", with what
+   is left (:attr:`~.results.Diagnosis.left`).
 
 A work budget (:mod:`.budget`, ``work_budget``, in sample-evaluations: counted solver
 work, never seconds, so that machine speed and load cannot change a decision) bounds
@@ -92,6 +97,7 @@ from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap, scale_invariant_names
 from ..identify.residuals import dataset_plan, numerical_error
 from ..identify.sampling import check_sample_rates
+from ..identify.solve import gauss_newton_drop
 from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
 from ..noise import noise_sigma, noise_sigma_relative_se
@@ -100,6 +106,7 @@ from .budget import UNIT, Budget
 from .catalogue import CATALOGUE, Candidate
 from .config import DEFAULT_CONFIG, DiagnoseConfig
 from .holdout import held_out_cost
+from .hysteresis_shape import with_refined_hysteresis
 from .learned import fit_learned
 from .locate import analyse_recording, mismatch_entries, residual_peaks
 from .passes import RefitPass, RefitRound, Reidentification
@@ -169,28 +176,77 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
         notes += [f"Baseline identification, step '{s.name}': {s.result.message}; the "
                   f"polish starts from where it stopped." for s in ident.steps
                   if s.result is not None and not s.converged]
-    base_names = baseline_free(act, data, fix)
-    n_base = int(np.size(ParameterMap.make(act, base_names).zeros()))  # θ columns
-    unpolished = act
     # The identification's joint step already minimised this residual (the ML
     # whitened one): the polish starts near its optimum, with little damping.
-    program = problem.program(act, base_names, {})
-    act, rss, polish = problem.fit_from(program, program.pmap.zeros(),
-                                        label="baseline polish",
-                                        max_steps=3 * config.max_steps,
-                                        initial_damping=1e-3 if identify_steps else 1.0)
+    base, polish = _polished(problem, act, "baseline polish", 3 * config.max_steps,
+                             1e-3 if identify_steps else 1.0)
     if not polish.converged:
         # Every later comparison is against this optimum: a baseline short of its own
         # optimum leaves residual that any entry with a baseline-like signature buys.
         notes.append(f"Baseline polish: {polish.message} (cost {polish.cost_start:.5g} "
                      f"-> {polish.cost_end:.5g}); the baseline may be short of its "
                      f"optimum, and part of what the entries remove may be its own.")
+    return base
+
+
+def _baseline_program(problem: Problem, start: Actuator):
+    """The residual and Jacobian program of every baseline quantity around ``start``."""
+    return problem.program(start, baseline_free(start, problem.data, problem.fix), {})
+
+
+def _polished(problem: Problem, start: Actuator, label: str, max_steps: int,
+              initial_damping: float, program=None) -> tuple[_Baseline, object]:
+    """``start`` polished on the whitened residual with every baseline quantity free
+    (``program``: :func:`_baseline_program` of ``start`` when already made): the
+    baseline it makes (``start`` as its unpolished one) and the solve's result."""
+    program = program or _baseline_program(problem, start)
+    names = list(program.pmap.names)
+    n_base = int(np.size(program.pmap.zeros()))  # θ columns
+    act, _, polish = problem.fit_from(program, program.pmap.zeros(), label=label,
+                                      max_steps=max_steps, initial_damping=initial_damping)
     rss, nrmse0, q0 = problem.evaluate(act)
-    rss_identified = float(polish.cost_start)  # the identification's (or init's) cost
+    rss_start = float(polish.cost_start)  # the identification's (or init's) cost
     at_act = (None if polish.jacobian is None
               else recentred(polish.jacobian, program.pmap, polish.theta))
-    return _Baseline(act, unpolished, rss, rss_identified, nrmse0, q0, base_names, n_base,
-                     polish.residual, polish.jacobian, at_act)
+    return _Baseline(act, start, rss, rss_start, nrmse0, q0, names, n_base,
+                     polish.residual, polish.jacobian, at_act), polish
+
+
+def _refined_hysteresis(problem: Problem, base: _Baseline, significance: Significance,
+                        config: DiagnoseConfig, notes: list[str]) -> _Baseline | None:
+    """Phase 1b (:mod:`.hysteresis_shape`): the baseline with its PI grid refined and
+    polished (at most ``config.refine_steps`` steps), when that makes it adequate; else
+    None (the coarse baseline stays, and the refinement is said in ``notes``)."""
+    start = with_refined_hysteresis(base.act)
+    n_old, n_new = base.act.hysteresis.n_memory, start.hysteresis.n_memory
+    n_obs = problem.n_obs
+    said = f"Hysteresis shape: the PI grid refined from {n_old} to {n_new} operators"
+    # First the Gauss-Newton step from the refined start (the new weights at zero): a
+    # refinement that to first order stays beyond the tolerance is not polished.
+    program = _baseline_program(problem, start)
+    r, jac = (np.asarray(a) for a in program(program.pmap.zeros()))
+    problem.budget.charge(problem.evaluation_work(start, jac.shape[1]))
+    predicted = float(r @ r) - gauss_newton_drop(r, jac)
+    if predicted > n_obs + significance.tolerance_rss:
+        notes.append(f"{said} would to first order leave mean (e/σ)² "
+                     f"{predicted / n_obs:.4g}, beyond the noise tolerance: not polished, "
+                     f"the baseline keeps its grid.")
+        problem.say(f"[hysteresis shape] {notes[-1]}")
+        return None
+    fine, polish = _polished(problem, start, "hysteresis refined", config.refine_steps,
+                             1.0, program)
+    adequate = significance.adequate(fine.rss, problem.chi2_per_recording(fine.nrmse))
+    said += (f" takes mean (e/σ)² from {base.rss / n_obs:.4g} to {fine.rss / n_obs:.4g} "
+             f"({polish.message})")
+    if adequate:
+        notes.append(f"{said}: within the noise tolerance, so the refined grid is the "
+                     f"baseline (the loop's shape, not a missing effect).")
+        problem.say(f"[hysteresis shape] {notes[-1]}")
+        return fine
+    notes.append(f"{said}: still beyond the noise tolerance, so the baseline keeps its "
+                 f"grid (a refinement could take up part of an effect).")
+    problem.say(f"[hysteresis shape] {notes[-1]}")
+    return None
 
 
 def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
@@ -349,15 +405,28 @@ def _learned_correction(problem: Problem, act: Actuator, base_names: list[str],
     return unexplained, corrected
 
 
-def _verdict(structured: bool, accepted: list[CandidateResult]) -> Verdict:
-    """A structured residual left: partly explained beside accepted entries, else
-    unexplained; no structure left: augmented when an entry was accepted, else the
-    baseline was adequate."""
-    if structured:
-        return Verdict.PARTLY_EXPLAINED if accepted else Verdict.UNEXPLAINED
+def _verdict(structured: bool, accepted: list[CandidateResult], within: bool) -> Verdict:
+    """Entries accepted: augmented only when the final residual is ``within`` the noise
+    tolerance, else partly explained (what they leave is still told from the noise,
+    whatever share of the excess they removed). None accepted: unexplained when a
+    ``structured`` residual is left, else the baseline was adequate."""
     if accepted:
-        return Verdict.AUGMENTED
-    return Verdict.BASELINE_ADEQUATE
+        return Verdict.AUGMENTED if within else Verdict.PARTLY_EXPLAINED
+    return Verdict.UNEXPLAINED if structured else Verdict.BASELINE_ADEQUATE
+
+
+def _left(significance: Significance, rss: float, chi2_rec: np.ndarray,
+          analyses: list) -> dict:
+    """What accepted entries leave beyond the noise tolerance (:attr:`.Diagnosis.left`):
+    whitened RSS ``rss``, per recording mean ``(e/σ)²`` ``chi2_rec``, the final
+    residual's ``analyses``."""
+    n_obs = significance.n_obs
+    beyond = chi2_rec > 1 + significance.recording_tolerances()
+    return {"chi2_per_sample": rss / n_obs, "tolerance_chi2": significance.tolerance,
+            "beyond_tolerance_nm": significance.nm(rss - n_obs - significance.tolerance_rss),
+            "recordings_beyond": [a.recording for a, b in zip(analyses, beyond, strict=True)
+                                  if b],
+            "where": mismatch_entries(analyses)[:3]}
 
 
 def _terms(act: Actuator) -> list[str]:
@@ -413,11 +482,17 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     with budget.baseline():  # its own account: never what skips an entry's refit
         base = _baseline(problem, init, identify_steps, config, notes)
         significance = _significance(problem, base, policy)
-    chi2_0 = base.rss / n_obs
     problem.significance = significance
     timings["baseline_s"] = time.perf_counter() - t0
     baseline_adequate = significance.adequate(
         base.rss, problem.chi2_per_recording(base.nrmse))
+    if not baseline_adequate and config.refine_hysteresis:
+        with budget.baseline():
+            refined = _refined_hysteresis(problem, base, significance, config, notes)
+        if refined is not None:
+            base, baseline_adequate = refined, True
+        timings["hysteresis_shape_s"] = time.perf_counter() - t0 - timings["baseline_s"]
+    chi2_0 = base.rss / n_obs
     say(f"[significance] tolerance: mean (e/σ)² within 1 + {significance.tolerance:.3g} "
         f"({significance.nm(significance.tolerance_rss):.3g} nm RMS; noise estimate "
         f"SE {significance.chi2_se:.3g}, numerical {significance.numerical_chi2:.2g}); "
@@ -528,8 +603,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     # excess; the learned correction then says what it depends on.
     excess0 = max(chi2_0 * n_obs - n_obs, 1e-9)
     left = (rss_final - n_obs) / excess0
-    structured = (not significance.adequate(rss_final, problem.chi2_per_recording(nrmse_f))
-                  and (not accepted or left > 1 - policy.explained_min))
+    within = significance.adequate(rss_final, problem.chi2_per_recording(nrmse_f))
+    structured = not within and (not accepted or left > 1 - policy.explained_min)
     unexplained = None
     if structured and fallback:
         t0 = time.perf_counter()
@@ -540,7 +615,11 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             rss_final, nrmse_f, qf = problem.evaluate(act)
         timings["fallback_s"] = time.perf_counter() - t0
     analyses_f = [analyse_recording(r, qf[i], sigmas[i]) for i, r in enumerate(data.recordings)]
-    verdict = _verdict(structured, accepted)
+    chi2_rec = problem.chi2_per_recording(nrmse_f)
+    within = significance.adequate(rss_final, chi2_rec)
+    verdict = _verdict(structured, accepted, within)
+    left = (None if within or not accepted
+            else _left(significance, rss_final, chi2_rec, analyses_f))
     # The simulator's own error at the final model (step doubling), next to the noise.
     numerical = numerical_error(act, data, dataset_plan(act, data))
     say(f"numerical floor: the simulator's error at the final model is at most "
@@ -553,4 +632,4 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                      not_testable, unexplained, verdict, base.q, qf, _terms(act), timings,
                      notes, [float(p) for p in hints["peaks_Hz"]], numerical,
                      budget.record(), policy, significance.record(), detection_limits,
-                     config)
+                     config, left)

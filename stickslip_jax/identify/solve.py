@@ -280,27 +280,35 @@ class LevenbergMarquardtSteps:
         return bool(y_ok and f_ok)
 
 
-def gauss_newton_distance(residual, jac, *, rcond: float = 1e-9) -> float:
-    """Squared length of the full Gauss-Newton step from a point, in standard errors.
-
-    With residual r (N,) and Jacobian J (N, p) the step δ = −(JᵀJ)⁺Jᵀr lowers the cost
-    by Δ = δᵀJᵀJδ = gᵀ(JᵀJ)⁺g (g = Jᵀr); divided by σ̂² = rᵀr/(N − p) it is the step's
-    Mahalanobis length squared under the covariance σ̂²(JᵀJ)⁺. Directions whose
-    singular value is below ``rcond`` times the largest (undetermined ones) are left
-    out, as in the uncertainty. [-]
-    """
+def gauss_newton_drop(residual, jac, *, rcond: float = 1e-9) -> float:
+    """What the full Gauss-Newton step from a point lowers the cost ``rᵀr`` by, to
+    first order: with residual r (N,) and Jacobian J (N, p), δ = −(JᵀJ)⁺Jᵀr lowers it by
+    Δ = gᵀ(JᵀJ)⁺g (g = Jᵀr). Directions whose singular value is below ``rcond`` times
+    the largest (undetermined ones) are left out. [units of rᵀr]; 0 when ``jac`` is
+    not finite."""
     r = np.asarray(residual, dtype=float)
     j = np.asarray(jac, dtype=float)
-    n, p = j.shape
-    sigma2 = float(r @ r) / max(n - p, 1)
-    if not (np.isfinite(sigma2) and sigma2 > 0 and np.all(np.isfinite(j))):
-        return float("inf") if not np.isfinite(sigma2) else 0.0
+    if not np.all(np.isfinite(j)):
+        return 0.0
     h = j.T @ j
     g = j.T @ r
     w, v = np.linalg.eigh(h)
     keep = w > (rcond**2) * max(float(w[-1]), 1e-300)
     gv = v.T @ g
-    return float(np.sum(gv[keep] ** 2 / w[keep]) / sigma2)
+    return float(np.sum(gv[keep] ** 2 / w[keep]))
+
+
+def gauss_newton_distance(residual, jac, *, rcond: float = 1e-9) -> float:
+    """Squared length of the full Gauss-Newton step from a point, in standard errors:
+    its cost drop (:func:`gauss_newton_drop`) divided by σ̂² = rᵀr/(N − p), the step's
+    Mahalanobis length squared under the covariance σ̂²(JᵀJ)⁺. [-]
+    """
+    r = np.asarray(residual, dtype=float)
+    n, p = np.shape(jac)
+    sigma2 = float(r @ r) / max(n - p, 1)
+    if not (np.isfinite(sigma2) and sigma2 > 0 and np.all(np.isfinite(jac))):
+        return float("inf") if not np.isfinite(sigma2) else 0.0
+    return gauss_newton_drop(r, jac, rcond=rcond) / sigma2
 
 
 def value_and_jacobian(residuals: Callable, theta):
