@@ -82,7 +82,7 @@ def diagnose_command(
     with reported_errors():
         setup_jax()
         from ..diagnose import NAMES, DiagnoseConfig, diagnose
-        from ..diagnose.report import named_line, unexplained_line, write_diagnosis
+        from ..diagnose.report import left_line, named_line, unexplained_line, write_diagnosis
         from ..model.profiles import lu2015_slc1720
         from ..plausibility import check_actuator_plausible
         from ..staging import staged_folder
@@ -147,9 +147,7 @@ def diagnose_command(
     for c in result.accepted:
         typer.echo(f"  named: {named_line(c)}")
     if result.left is not None:
-        typer.echo(f"  left: mean (e/σ)² {result.left['chi2_per_sample']:.3f}, beyond the "
-                   f"tolerance 1 + {result.left['tolerance_chi2']:.3g} by "
-                   f"{result.left['beyond_tolerance_nm']:.3g} nm RMS (a partial answer)")
+        typer.echo(f"  left: {left_line(result.left)}")
     if result.unexplained is not None:
         typer.echo(f"  {unexplained_line(result)}")
     typer.echo(f"wrote {written['diagnosis']} and {written['report']}")

@@ -91,15 +91,20 @@ def _per_recording(nrmse, analyses, numerical=None) -> list[dict]:
     return rows
 
 
+def left_line(left: dict) -> str:
+    """What the accepted entries leave beyond the noise tolerance, in a sentence
+    (:attr:`~.results.Diagnosis.left`)."""
+    return (f"the accepted entries leave mean (e/σ)² {left['chi2_per_sample']:.3f}, beyond "
+            f"the tolerance 1 + {left['tolerance_chi2']:.3g} by "
+            f"{left['beyond_tolerance_nm']:.3g} nm RMS: a partial answer")
+
+
 def _left_markdown(left: dict) -> list[str]:
     """report.md's lines on what the accepted entries leave beyond the noise tolerance."""
     where = ", ".join(f"{m['recording']} ({m['regime']}, {m['band_Hz'][0]:.0f}-"
                       f"{m['band_Hz'][1]:.0f} Hz)" for m in left["where"])
     return ["## What is left", "",
-            f"The accepted entries leave mean (e/σ)² {left['chi2_per_sample']:.3f}, beyond "
-            f"the tolerance 1 + {left['tolerance_chi2']:.3g} by "
-            f"{left['beyond_tolerance_nm']:.3g} nm RMS: they are a partial answer. "
-            f"Recordings beyond their own tolerance: "
+            f"{left_line(left).capitalize()}. Recordings beyond their own tolerance: "
             f"{', '.join(left['recordings_beyond']) or 'none (the mean only)'}"
             + (f"; worst: {where}." if where else "."), ""]
 
