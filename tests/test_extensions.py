@@ -90,7 +90,7 @@ def test_every_probe_at_zero_strength_is_the_baseline(saw):
         assert float(jnp.max(jnp.abs(dq))) > 1e-10, e.probe.label
         if e.probe.extension is not None:
             # The strength addressed is this probe's own (in a bank: its element).
-            alone = base.with_extension(eqx.tree_at(lambda x, f=e.probe.field: getattr(x, f),
+            alone = base.with_extension(eqx.tree_at(e.probe.strength_getter(),
                                                     e.probe.extension,
                                                     jnp.asarray(step)))
             dq_alone = ss.simulate(alone, u, dt=rec.dt, stepping=plan) - q0

@@ -70,7 +70,8 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate],
                            if len(members) > 1 else probe.extension)
                     i = len(act.extensions)
                     act = act.with_extension(ext)
-                    spec = ParameterSpec(lambda a, i=i, f=probe.field: getattr(a.extensions[i], f),
+                    strength = probe.strength_getter()
+                    spec = ParameterSpec(lambda a, i=i, f=strength: f(a.extensions[i]),
                                          "linear", probe.spec.scale, probe.spec.unit)
                 else:
                     act = probe.install(act)

@@ -15,8 +15,10 @@ Extensions (own states and additive terms):
     :class:`Creep` (first-order creep of the stroke), :class:`RateDependentStroke`
     (stroke lag proportional to the voltage rate), :class:`CreepSpectrum` (creep as a
     Prony series on a fixed grid of time constants), :class:`StructuralMode` (a mount
-    resonance seen by the sensor), :class:`PositionRipple` (a force periodic in
-    slider position, no catalogue entry: used to test the honest "unexplained"),
+    resonance seen by the sensor), :class:`SaturatingViscosity` (friction against the
+    sliding velocity on a grid of saturation speeds),
+    :class:`PositionRipple` (a force periodic in slider position, no catalogue entry:
+    used to test the honest "unexplained"),
     :class:`LearnedForce` (the data-driven correction: sparse regression over a
     library of state features).
 Output maps (what the sensor makes of q):
@@ -385,6 +387,62 @@ class PositionRipple(_ForceOnly):
     def terms(self, state, core, drive):
         return ExtensionTerms(force_slider=self.amplitude
                               * jnp.sin(2 * jnp.pi * core.x2 / self.wavelength))
+
+
+class SaturatingViscosity(_ForceOnly):
+    """Friction against the sliding velocity that saturates, on a fixed grid of speeds:
+    ``F = Σ_k c_k·v_k·tanh(ẋ/v_k)`` [N] added to the contact's friction force (ẋ = v1 −
+    v2, the sign of the law's ``rho2·ẋ``). Each term is a viscous force of slope
+    ``c_k`` at rest that levels off at ``c_k·v_k`` above ``v_k``; with non-negative
+    ``c_k`` beside the law's linear ``rho2`` the sum is any odd friction that rises
+    with the speed and bends over (linear viscous, saturating, a drag nearly constant
+    above a small speed). Smooth: no switch, no kink at ẋ = 0.
+
+    The slopes are a tuple, so that a fit can free each one (``eqx.tree_at``
+    addresses tuple members, not a vector's elements): scalars, or one vector for a
+    bank of probes (:meth:`bank`; the score test's strengths are its elements); the
+    speeds are the fixed grid, one per slope. Attributes: ``gains`` c_k [N·s/m],
+    ``speeds`` v_k [m/s].
+    """
+
+    gains: tuple
+    speeds: Float[Array, " k"]
+
+    def __init__(self, gains, speeds):
+        self.speeds = jnp.atleast_1d(_f(speeds))
+        self.gains = tuple(_f(g) for g in gains)
+        if (self.speeds.ndim != 1 or any(g.ndim > 1 for g in self.gains)
+                or sum(g.size for g in self.gains) != self.speeds.size):
+            raise ValueError(f"SaturatingViscosity needs one gain per speed, got gains of "
+                             f"shapes {[g.shape for g in self.gains]} and speeds of shape "
+                             f"{self.speeds.shape}")
+
+    @classmethod
+    def bank(cls, members):
+        """One extension holding ``members`` (one slope each) side by side, their slopes
+        one vector (the score test's bank of probes)."""
+        return cls((jnp.stack([m.gains[0] for m in members]),),
+                   jnp.concatenate([m.speeds for m in members]))
+
+    def slopes(self):
+        """The slopes c_k [N·s/m] as one vector, in the order of ``speeds``."""
+        return jnp.concatenate([jnp.atleast_1d(g) for g in self.gains])
+
+    def force(self, xdot):
+        """The force [N] at sliding velocity ``xdot`` [m/s] (any shape)."""
+        xdot = jnp.asarray(xdot)
+        lead = (1,) * xdot.ndim  # the grid on a last axis of its own (no rank promotion)
+        speeds = self.speeds.reshape(lead + (-1,))
+        levels = (self.slopes() * self.speeds).reshape(lead + (-1,))
+        return jnp.sum(levels * jnp.tanh(xdot[..., None] / speeds), axis=-1)
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(friction=self.force(core.v1 - core.v2))
+
+
+def first_slope(ext: SaturatingViscosity):
+    """The first member of ``ext``'s slopes (a bank's vector): what a probe frees."""
+    return ext.gains[0]
 
 
 LEARNED_FEATURES = ("x2", "v2", "xdot", "tanh_xdot", "u", "x1_minus_stroke")

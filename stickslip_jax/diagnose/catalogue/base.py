@@ -24,7 +24,13 @@ class Probe:
     sign: int = 0
     setting: dict = field(default_factory=dict)
     extension: object = None  # appended by the probe builder, which addresses it by index
-    field: str = ""
+    field: str | Callable = ""  # the extension's strength: an attribute, or its getter
+
+    def strength_getter(self) -> Callable:
+        """The getter of the strength in :attr:`extension` (its attribute :attr:`field`
+        names, or :attr:`field` itself when it is a getter)."""
+        field = self.field
+        return field if callable(field) else (lambda e: getattr(e, field))
 
     def strength_scale(self, strength: float) -> float:
         """A θ unit for refitting a linear strength that starts at ``strength``."""
