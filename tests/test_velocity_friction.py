@@ -74,11 +74,13 @@ def test_the_entry_starts_at_the_probes_rho2_and_says_the_force_found():
     assert float(carried.friction.rho0) == float(other.friction.rho0)
     assert float(carried.friction.rho2) == pytest.approx(float(fitted.friction.rho2))
     assert isinstance(carried.extensions[-1], SaturatingViscosity)
-    params = {"rho2": 0.1, VISCOUS.slope_name(1e-3): 3.0, VISCOUS.slope_name(30e-3): 0.0}
+    params = {"rho2": 0.1, VISCOUS.slope_name(1e-3): 3.0, VISCOUS.slope_name(30e-3): 0.0,
+              VISCOUS.slope_name(0.3e-3): 6e-10}  # at its bound: not said
     np.testing.assert_allclose(VISCOUS.force_curve(params, [1e-3, 1.0]),
-                               [0.1e-3 + 3e-3 * np.tanh(1.0), 0.1 + 3e-3], rtol=1e-12)
+                               [0.1e-3 + 3e-3 * np.tanh(1.0), 0.1 + 3e-3], rtol=1e-6)
     text = entry.describe(params)
     assert "rho2 0.1 N·s/m" in text and "3 to 1 mm/s" in text and "30 mm/s" not in text
+    assert "to 0.3 mm/s" not in text
 
 
 def test_a_saturating_probe_starts_the_refit_at_its_speed():

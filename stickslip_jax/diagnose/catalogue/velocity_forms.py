@@ -32,6 +32,12 @@ START_SHARE = 0.01
 the softplus's curve, where the fit can raise it or let it fall to 0."""
 
 
+USED_SHARE = 1e-3
+"""The report says a saturating slope only above this share of the largest: below it
+the fit drove it to its bound, 0 (the refit's own count of what it spent is
+:func:`~stickslip_jax.diagnose.refit.counted_parameters`'s)."""
+
+
 @dataclass(frozen=True)
 class VelocityForm:
     """One entry's friction against the sliding velocity: the law's linear
@@ -94,8 +100,11 @@ class VelocityForm:
         """``what`` (the entry's words) and the form found, from refitted ``params``."""
         at = np.asarray(self.probe_speeds)
         force = self.force_curve(params, at)
+        fitted = self.slopes(params)
+        # A slope the fit drove to its bound (orders below the largest) is left out.
         slopes = [f"{c:.3g} to {v * 1e3:g} mm/s"
-                  for c, v in zip(self.slopes(params), self.speeds, strict=True) if c > 0]
+                  for c, v in zip(fitted, self.speeds, strict=True)
+                  if c > USED_SHARE * fitted.max()]
         return (f"{what}: {self.coefficient} {params.get(self.coefficient, 0.0):.3g} N·s/m"
                 + (" and saturating slopes " + ", ".join(slopes) if slopes else "")
                 + "; force at " + ", ".join(f"{v * 1e3:g} mm/s {f * 1e3:.3g} mN"
@@ -109,7 +118,8 @@ class VelocityForm:
                 lw=0.8, label=f"{self.coefficient} alone")
         ax.set_xlabel(f"{self.velocity} [mm/s]")
         ax.set_ylabel("friction added [mN]")
-        ax.set_title(f"{what} ({int(np.sum(self.slopes(params) > 0))} saturating terms)",
-                     fontsize=9)
+        slopes = self.slopes(params)
+        used = int(np.sum(slopes > USED_SHARE * slopes.max())) if slopes.max() > 0 else 0
+        ax.set_title(f"{what} ({used} saturating terms)", fontsize=9)
         ax.legend(fontsize=7)
         return True
