@@ -10,9 +10,9 @@ velocity spans in stepping (a force that levels off there projects poorly on the
 linear one's signature); the refit starts from the best probe's slope at its speed.
 
 Contact damping (rho1, against the bristles' rate ż) is not one of them yet: the same
-terms in ż were tried (dev2 set_04, a saturating contact damping at 12x the noise)
-and their refits stalled while the simulator's error at the refitted model reached
-0.55 nm RMS, a plan of sub-steps made at the refit's start no longer resolving it.
+terms in ż were tried, and a refit that grows them stiffens the model beyond the plan
+of sub-steps made at its start (benchmarks/README.md, "Friction against the sliding
+velocity as a class").
 """
 
 from __future__ import annotations
