@@ -66,7 +66,12 @@ SizingOutcome`, :class:`~.records.RefitOutcome`) on its
    leaves a residual within the tolerance. Accepted-grade rivals (ΔBIC below
    :attr:`~.Policy.bic_min`) whose refit's cost exceeds the best's by no more than the
    tolerance (the data cannot tell the two fits apart) are reported as
-   indistinguishable from it. Repeat from 3 until no entry is accepted.
+   indistinguishable from it. An accepted entry that leaves the model beyond the
+   tolerance is followed by phase 1b on the augmented model (the PI grid refined, the
+   accepted entries held): an effect hidden under a loop of another shape than the
+   grid's leaves, once named, the grid's residue, which no entry is for; the refined
+   model is kept, and the loop ends, when it is within the tolerance. Repeat from 3
+   until no entry is accepted.
 7. **Learned correction** (:func:`_learned_correction`, :mod:`.learned`): if a
    structured residual remains that no entry explains, fit the data-driven
    correction (:class:`~stickslip_jax.model.extensions.LearnedForce`, sparse
@@ -100,6 +105,7 @@ from ..identify.sampling import check_sample_rates
 from ..identify.solve import gauss_newton_drop
 from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
+from ..model.hysteresis import PrandtlIshlinskii
 from ..noise import noise_sigma, noise_sigma_relative_se
 from ..significance import Significance
 from .budget import UNIT, Budget
@@ -212,15 +218,19 @@ def _polished(problem: Problem, start: Actuator, label: str, max_steps: int,
                      polish.residual, polish.jacobian, at_act), polish
 
 
-def _refined_hysteresis(problem: Problem, base: _Baseline, significance: Significance,
-                        config: DiagnoseConfig, notes: list[str]) -> _Baseline | None:
-    """Phase 1b (:mod:`.hysteresis_shape`): the baseline with its PI grid refined and
-    polished (at most ``config.refine_steps`` steps), when that makes it adequate; else
-    None (the coarse baseline stays, and the refinement is said in ``notes``)."""
-    start = with_refined_hysteresis(base.act)
-    n_old, n_new = base.act.hysteresis.n_memory, start.hysteresis.n_memory
+def _refined_hysteresis(problem: Problem, act: Actuator, rss: float,
+                        significance: Significance, config: DiagnoseConfig,
+                        notes: list[str], after: str = "") -> _Baseline | None:
+    """Phase 1b (:mod:`.hysteresis_shape`): ``act`` (whitened RSS ``rss``) with its PI
+    grid refined and polished (at most ``config.refine_steps`` steps, every baseline
+    quantity free, the accepted entries held), when that makes it adequate; else None
+    (the coarse grid stays, and the refinement is said in ``notes``). ``after``: the
+    accepted entries ``act`` holds, for the note (empty: the baseline)."""
+    start = with_refined_hysteresis(act)
+    n_old, n_new = act.hysteresis.n_memory, start.hysteresis.n_memory
     n_obs = problem.n_obs
-    said = f"Hysteresis shape: the PI grid refined from {n_old} to {n_new} operators"
+    said = (f"Hysteresis shape{f' (after {after})' if after else ''}: the PI grid "
+            f"refined from {n_old} to {n_new} operators")
     # First the Gauss-Newton step from the refined start (the new weights at zero): a
     # refinement that to first order stays beyond the tolerance is not polished.
     program = _baseline_program(problem, start)
@@ -228,29 +238,52 @@ def _refined_hysteresis(problem: Problem, base: _Baseline, significance: Signifi
     problem.budget.charge(problem.evaluation_work(start, jac.shape[1]))
     predicted = float(r @ r) - gauss_newton_drop(r, jac)
     kept = None
+    whose = "the model" if after else "the baseline"
     if predicted > n_obs + significance.tolerance_rss:
         said += (f" would to first order leave mean (e/σ)² {predicted / n_obs:.4g}, beyond "
-                 f"the noise tolerance: not polished, the baseline keeps its grid.")
+                 f"the noise tolerance: not polished, {whose} keeps its grid.")
     else:
         fine, polish = _polished(problem, start, "hysteresis refined", config.refine_steps,
                                  1.0, program)
-        said += (f" takes mean (e/σ)² from {base.rss / n_obs:.4g} to "
+        said += (f" takes mean (e/σ)² from {rss / n_obs:.4g} to "
                  f"{fine.rss / n_obs:.4g} ({polish.message})")
         if significance.adequate(fine.rss, problem.chi2_per_recording(fine.nrmse)):
             kept = fine
-            said += (": within the noise tolerance, so the refined grid is the baseline "
-                     "(the loop's shape, not a missing effect).")
+            said += (f": within the noise tolerance, so the refined grid is {whose} "
+                     f"(the loop's shape, not a missing effect).")
         else:
-            said += (": still beyond the noise tolerance, so the baseline keeps its grid "
-                     "(a refinement could take up part of an effect).")
+            said += (f": still beyond the noise tolerance, so {whose} keeps its grid "
+                     f"(a refinement could take up part of an effect).")
     notes.append(said)
     problem.say(f"[hysteresis shape] {said}")
     return kept
 
 
+def _refined_after(problem: Problem, act: Actuator, rss: float,
+                   significance: Significance, config: DiagnoseConfig, notes: list[str],
+                   accepted: list[str]) -> _Baseline | None:
+    """:func:`_refined_hysteresis` of the model with the ``accepted`` entries, when the
+    configuration refines the hysteresis and the work budget allows its polish (else
+    None, said in ``notes``)."""
+    if not config.refine_hysteresis or not isinstance(act.hysteresis, PrandtlIshlinskii):
+        return None
+    fine = with_refined_hysteresis(act)
+    names = baseline_free(fine, problem.data, problem.fix)
+    n_cols = int(np.size(ParameterMap.make(fine, names, {}).zeros()))
+    need = problem.fit_estimate(fine, n_cols, config.refine_steps + 1)
+    what = f"hysteresis shape after {', '.join(accepted)}"
+    if not problem.budget.allows(need):
+        notes.append(f"Hysteresis shape after {', '.join(accepted)}: "
+                     f"{problem.budget.skip(what, need)}.")
+        return None
+    return _refined_hysteresis(problem, act, rss, significance, config, notes,
+                               after=", ".join(accepted))
+
+
 def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
     """Phase 2: each recording's residual analysis, the flagged ones, and the hints
-    the probes use (shared residual peaks, the largest voltage slew)."""
+    the probes use (shared residual peaks, the largest voltage slew, the shortest and
+    longest recording)."""
     data, sigmas = problem.data, problem.sigmas
     analyses = [analyse_recording(r, q0[i], sigmas[i]) for i, r in enumerate(data.recordings)]
     mismatch = mismatch_entries(analyses)
@@ -261,7 +294,9 @@ def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
                                         octaves=config.peak_octaves),
              "max_slew_V_s": max(float(np.max(np.abs(np.diff(r.voltage_V)))) / r.dt
                                  for r in data.recordings),
-             "sample_interval_s": min(float(r.dt) for r in data.recordings)}
+             "sample_interval_s": min(float(r.dt) for r in data.recordings),
+             "recording_durations_s": (min(r.n * r.dt for r in data.recordings),
+                                       max(r.n * r.dt for r in data.recordings))}
     return analyses, mismatch, hints
 
 
@@ -488,7 +523,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     if not baseline_adequate and config.refine_hysteresis:
         t0 = time.perf_counter()
         with budget.baseline():
-            refined = _refined_hysteresis(problem, base, significance, config, notes)
+            refined = _refined_hysteresis(problem, base.act, base.rss, significance,
+                                          config, notes)
         if refined is not None:
             base, baseline_adequate = refined, True
         timings["hysteresis_shape_s"] = time.perf_counter() - t0
@@ -590,6 +626,15 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         pool = [c for c in pool if c.name != best.name]
         nrmse_now = best.nrmse_after
         if best.adequate:
+            break
+        # The loop's shape after the entries: an effect hidden under a hysteresis on
+        # another grid than the baseline's leaves, once named, the grid's residue,
+        # which no entry is for (phase 1b could not tell it while the effect was
+        # there). Kept only when the refined model is within the tolerance.
+        refined = _refined_after(problem, act, rss, significance, config, notes,
+                                 [r.name for r in accepted])
+        if refined is not None:
+            act, rss, nrmse_now = refined.act, refined.rss, float(refined.nrmse.mean())
             break
 
     if budget.skipped:

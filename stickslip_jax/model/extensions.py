@@ -499,20 +499,42 @@ def delayed(t, q, delay):
 
 
 class SensorOutput(AbstractOutputMap):
-    """Interferometer with a delay and a linear drift: ``q(t − delay) + drift·t``.
+    """Interferometer with a delay and a drift: ``q(t − delay) + drift·t +
+    Σ a_i·(1 − exp(−t/T_i))``, the drift a linear term beside settling terms on a
+    fixed grid of time constants (none by default): with amplitudes of either sign, a
+    thermal drift that settles (one exponential, several, or a curve between them) as
+    well as a steady one. ``t`` is each recording's own time from its first sample.
 
-    Attributes: ``delay`` [s] (≥ 0), ``drift`` [m/s].
+    The amplitudes are a tuple of scalars, so that a fit can free each one; the time
+    constants are the fixed grid.
+
+    Attributes: ``delay`` [s] (≥ 0), ``drift`` [m/s], ``settling`` a_i [m],
+    ``settle_times`` T_i [s].
     """
 
     delay: Float[Array, ""]
     drift: Float[Array, ""]
+    settling: tuple
+    settle_times: Float[Array, " k"]
 
-    def __init__(self, delay=0.0, drift=0.0):
+    def __init__(self, delay=0.0, drift=0.0, settling=(), settle_times=()):
         self.delay = _f(delay)
         self.drift = _f(drift)
+        self.settling = tuple(_f(a) for a in settling)
+        self.settle_times = jnp.asarray(settle_times, dtype=float).reshape(-1)
+        if len(self.settling) != self.settle_times.size:
+            raise ValueError(f"SensorOutput needs one settling amplitude per time constant, "
+                             f"got {len(self.settling)} and {self.settle_times.size}")
+
+    def drift_at(self, t):
+        """The drift [m] at times ``t`` [s] from the recording's start."""
+        out = self.drift * t
+        for i, a in enumerate(self.settling):
+            out = out + a * (1.0 - jnp.exp(-t / self.settle_times[i]))
+        return out
 
     def __call__(self, t, q):
-        return delayed(t, q, self.delay) + self.drift * t
+        return delayed(t, q, self.delay) + self.drift_at(t)
 
 
 class ExponentialDrift(AbstractOutputMap):

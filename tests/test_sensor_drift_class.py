@@ -1,0 +1,90 @@
+"""Sensor drift as a class (stickslip_jax/diagnose/catalogue/sensor_drift.py): a linear
+drift beside settling terms on a grid of time constants from the recordings."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+
+import stickslip_jax as ss
+from stickslip_jax.diagnose.catalogue import candidate
+from stickslip_jax.diagnose.catalogue.sensor_drift import (
+    FASTEST_SHARE,
+    GRID_RATIO,
+    SLOWEST_MULTIPLE,
+    amplitude_name,
+    settle_times,
+)
+from stickslip_jax.model.extensions import SensorOutput
+
+matplotlib.use("Agg")
+PROTOCOL = (0.02, 0.1)  # the paper protocol's shortest and longest recording [s]
+
+
+def test_the_drift_is_linear_plus_settling_terms():
+    t = jnp.linspace(0.0, 0.1, 101)
+    out = SensorOutput(delay=0.0, drift=2e-7, settling=(3e-9, -1e-9), settle_times=(0.01, 0.05))
+    want = 2e-7 * t + 3e-9 * (1 - jnp.exp(-t / 0.01)) - 1e-9 * (1 - jnp.exp(-t / 0.05))
+    np.testing.assert_allclose(out(t, jnp.zeros_like(t)), want, rtol=0, atol=1e-22)
+    # No settling terms: the linear drift of before.
+    np.testing.assert_allclose(SensorOutput(drift=2e-7)(t, t), t + 2e-7 * t, atol=1e-22)
+    with pytest.raises(ValueError, match="one settling amplitude per time constant"):
+        SensorOutput(settling=(1e-9,), settle_times=(0.01, 0.02))
+
+
+def test_the_grid_spans_the_recordings_and_is_fine_enough_for_any_settling_between():
+    times = np.asarray(settle_times(PROTOCOL))
+    assert times[0] == pytest.approx(FASTEST_SHARE * PROTOCOL[0])
+    assert times[-1] == pytest.approx(SLOWEST_MULTIPLE * PROTOCOL[1])
+    assert np.all(times[1:] / times[:-1] <= GRID_RATIO * (1 + 1e-12))
+    # A settling of 50 nm whose time constant falls between two grid points is matched by
+    # the class's terms (linear drift and grid) to well under the noise (0.5-2 nm).
+    t = np.linspace(0.0, PROTOCOL[1], 1001)
+    basis = np.column_stack([t] + [1 - np.exp(-t / tau) for tau in times])
+    for tau in np.sqrt(times[1:] * times[:-1]):
+        target = 50e-9 * (1 - np.exp(-t / tau))
+        fit = basis @ np.linalg.lstsq(basis, target, rcond=None)[0]
+        assert np.max(np.abs(fit - target)) < 0.05e-9, tau
+    # One linear term alone misses most of them by nanometres: the terms are needed.
+    tau = float(np.sqrt(times[1] * times[2]))
+    target = 50e-9 * (1 - np.exp(-t / tau))
+    line = np.column_stack([t, np.ones_like(t)])
+    miss = line @ np.linalg.lstsq(line, target, rcond=None)[0] - target
+    assert np.max(np.abs(miss)) > 5e-9
+
+
+def test_the_entry_frees_the_linear_drift_and_every_settling_amplitude():
+    entry = candidate("sensor_drift")
+    act = eqx.tree_at(lambda a: a.output_map, ss.lu2015_slc1720(), SensorOutput(delay=3e-6))
+    probe = entry.probes(act, {"recording_durations_s": PROTOCOL})[0]
+    attached, specs = entry.attach(act, 4e-7, probe)
+    times = settle_times(PROTOCOL)
+    out = attached.output_map
+    assert float(out.delay) == 3e-6  # a delay already named is kept
+    assert float(out.drift) == 4e-7
+    assert len(out.settling) == len(times) and all(float(a) == 0.0 for a in out.settling)
+    assert list(specs) == ["sensor_drift"] + [amplitude_name(t) for t in times]
+    # Each amplitude's getter addresses its own term.
+    for i, t in enumerate(times):
+        assert specs[amplitude_name(t)].getter(attached) is out.settling[i]
+    # Without the recordings' durations, the linear drift alone (as before the class).
+    bare = entry.attach(act, 4e-7, entry.probes(act, {})[0])[1]
+    assert list(bare) == ["sensor_drift"]
+
+
+def test_the_report_says_and_draws_the_drift_found():
+    entry = candidate("sensor_drift")
+    times = settle_times(PROTOCOL)
+    params = {"sensor_drift": 1e-7} | {amplitude_name(t): 0.0 for t in times}
+    params[amplitude_name(times[2])] = 20e-9
+    said = entry.describe(params)
+    assert "linear 0.1 nm/ms" in said and f"+20 nm at {times[2] * 1e3:.3g} ms" in said
+    end = 1e-7 * 0.1 + 20e-9 * (1 - np.exp(-0.1 / times[2]))
+    assert f"{end * 1e9:.3g} nm at the end of the longest recording" in said
+    fig, ax = plt.subplots()
+    assert entry.plot_form(ax, params)
+    drawn = ax.lines[0].get_ydata()
+    assert drawn[-1] == pytest.approx(end * 1e9, rel=1e-3)
+    plt.close(fig)
