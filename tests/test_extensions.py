@@ -18,6 +18,7 @@ from stickslip_jax.model.extensions import (
     LowPassInput,
     RateDependentStroke,
     SensorOutput,
+    StructuralMode,
     delayed,
 )
 from stickslip_jax.synthetic import DriveSpec
@@ -277,3 +278,27 @@ def test_a_learned_feature_switched_off_adds_no_force_and_keeps_the_structure(sa
     q_off = ss.simulate(off, u, dt=rec.dt, stepping=plan)
     assert float(jnp.max(jnp.abs(q_on - q0))) > 1e-9  # the feature moves the slider
     assert float(jnp.max(jnp.abs(q_off - q0))) < 1e-15
+
+
+def test_a_mode_excited_by_the_stack_is_the_independent_reaction_mode(saw):
+    """The structural mode's second excitation (the stack's push on its base) against
+    the test generator's own base mode (stickslip_jax/testing/effects.py, written from
+    the stack's forces Kp·(Γ − x1) − Dp·ẋ1 apart from the model's core)."""
+    from stickslip_jax.testing.effects import ReactionMode
+
+    rec, u = saw
+    base = ss.lu2015_slc1720()
+    ours = base.with_extension(StructuralMode(4000.0, 0.03, 0.0, 5e-8))
+    theirs = base.with_extension(ReactionMode(4000.0, 0.03, 5e-8, base.piezo.Kp,
+                                              base.piezo.Dp))
+    q0 = np.asarray(ss.simulate(base, u, dt=rec.dt))
+    q1 = np.asarray(ss.simulate(ours, u, dt=rec.dt))
+    q2 = np.asarray(ss.simulate(theirs, u, dt=rec.dt))
+    assert np.ptp(q1 - q0) > 1e-9  # the base rings by nanometres
+    np.testing.assert_allclose(q1, q2, rtol=0, atol=1e-13)
+    # The two excitations add: contact and stack together are the sum of each alone.
+    both = base.with_extension(StructuralMode(4000.0, 0.03, 2e-8, 5e-8))
+    contact = base.with_extension(StructuralMode(4000.0, 0.03, 2e-8))
+    q3 = np.asarray(ss.simulate(both, u, dt=rec.dt))
+    q4 = np.asarray(ss.simulate(contact, u, dt=rec.dt))
+    np.testing.assert_allclose(q3 - q0, (q1 - q0) + (q4 - q0), rtol=0, atol=1e-12)

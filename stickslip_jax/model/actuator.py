@@ -94,7 +94,7 @@ class Actuator(eqx.Module):
         xdot = v1 - v2
         zdot = self.friction.z_rate(z, xdot, drive)
         ff = self.friction.force(z, zdot, xdot, drive)
-        core = CoreState(x1, v1, x2, v2, z, ff, u, stroke)
+        core = CoreState(x1, v1, x2, v2, z, ff, u, stroke, self.piezo.push(x1, v1, stroke))
         if not self.extensions:
             return core, zdot, []
         _, ext = self._slots(y)

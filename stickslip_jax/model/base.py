@@ -219,7 +219,9 @@ class CoreState(eqx.Module):
 
     Attributes: x1, v1 (piezo deformation [m] and rate [m/s]), x2, v2 (slider
     position [m], velocity [m/s]), z (elastic strain [m]), friction force ff [N],
-    u (voltage at the piezo [V]), stroke (free stroke Γ [m]).
+    u (voltage at the piezo [V]), stroke (free stroke Γ [m]), push (the force the
+    stack puts on its base beyond the preload [N], :meth:`~stickslip_jax.model.piezo.
+    PiezoElement.push`, at the stroke before extensions add to it).
     """
 
     x1: Float[Array, ""]
@@ -230,6 +232,7 @@ class CoreState(eqx.Module):
     ff: Float[Array, ""]
     u: Float[Array, ""]
     stroke: Float[Array, ""]
+    push: Float[Array, ""] = 0.0
 
 
 class ExtensionTerms(eqx.Module):

@@ -322,22 +322,28 @@ class RateDependentStroke(_FirstOrder):
 class StructuralMode(AbstractExtension):
     """A resonance of the mount, guide or base that the sensor sees.
 
-    The mount moves by ``x_b`` with ``ẍ_b = ω²(compliance·Ff − x_b) − 2ζω·ẋ_b``:
-    excited by the contact force Ff [N] (the force the actuator passes to its base),
-    statically ``x_b = compliance·Ff``; the sensor reads ``q + x_b``.
+    The mount moves by ``x_b`` with ``ẍ_b = ω²(compliance·Ff + stack_compliance·F_s −
+    x_b) − 2ζω·ẋ_b``: excited by the contact force Ff [N] (at the slider's contact)
+    and by the force F_s [N] the stack puts on its base (:meth:`~stickslip_jax.model.
+    piezo.PiezoElement.push`: the contact force and the reaction of the stack's
+    accelerating mass, which rings the base at every drive edge); statically
+    ``x_b = compliance·Ff + stack_compliance·F_s``; the sensor reads ``q + x_b``.
 
-    Attributes: ``frequency`` [Hz], ``damping`` ζ [-], ``compliance`` [m/N] (signed:
-    the sensor may see the mount move either way).
+    Attributes: ``frequency`` [Hz], ``damping`` ζ [-], ``compliance`` and
+    ``stack_compliance`` [m/N] (signed: the sensor may see the mount move either way;
+    the second 0 by default).
     """
 
     frequency: Float[Array, ""]
     damping: Float[Array, ""]
     compliance: Float[Array, ""]
+    stack_compliance: Float[Array, ""]
 
-    def __init__(self, frequency, damping, compliance):
+    def __init__(self, frequency, damping, compliance, stack_compliance=0.0):
         self.frequency = _f(frequency)
         self.damping = _f(damping)
         self.compliance = _f(compliance)
+        self.stack_compliance = _f(stack_compliance)
 
     @property
     def n_states(self) -> int:
@@ -348,7 +354,8 @@ class StructuralMode(AbstractExtension):
 
     def rate(self, state, core, drive):
         w = 2 * jnp.pi * self.frequency
-        acc = w**2 * (self.compliance * core.ff - state[0]) - 2 * self.damping * w * state[1]
+        load = self.compliance * core.ff + self.stack_compliance * core.push
+        acc = w**2 * (load - state[0]) - 2 * self.damping * w * state[1]
         return jnp.stack([state[1], acc])
 
     def terms(self, state, core, drive):

@@ -38,7 +38,13 @@ class PiezoElement(eqx.Module):
         """Constant force ``Kact2·N`` [N] opposing the stroke."""
         return self.Kact2 * self.N
 
+    def push(self, x1, v1, stroke):
+        """The force [N] the stack puts on its base beyond the constant preload:
+        ``Kp·(Γ − x1) − Dp·ẋ1 − Kact2·N`` (= ``Mp·ẍ1 + Ff``: the contact force and the
+        reaction of the stack's accelerating mass)."""
+        return self.Kp * (stroke - x1) - self.Dp * v1 - self.preload_force
+
     def acceleration(self, x1, v1, stroke, friction_force, extra_force=0.0):
         """ẍ1 [m/s²] from deformation [m], rate [m/s], free stroke [m], forces [N]."""
-        rhs = self.Kp * (stroke - x1) - self.Dp * v1 - self.preload_force - friction_force
+        rhs = self.push(x1, v1, stroke) - friction_force
         return (rhs + extra_force) * (1.0 / self.Mp)

@@ -21,8 +21,11 @@ shape. From the signature's definition, not from a data set."""
 @final
 class StructuralModeEntry(CatalogueEntry):
     """A :class:`~stickslip_jax.model.extensions.StructuralMode` (frequency [Hz],
-    damping [-], compliance [m/N]) at a shared residual peak (the first two; 2 kHz
-    when none); the refit frees all three."""
+    damping [-], compliances [m/N]) at a shared residual peak (the first two; 2 kHz
+    when none), probed as excited by the contact force; the refit frees the frequency,
+    the damping and both places the mode is excited from: the contact force and the
+    stack's push on its base (started at 0; a mode of the base rung by the stack's
+    reaction at every drive edge, or both)."""
 
     name = "structural_mode"
     slot = "extension"
@@ -41,7 +44,10 @@ class StructuralModeEntry(CatalogueEntry):
                                                      "Hz"),
                      "mode_damping": ParameterSpec(lambda a: g(a).damping, "log", 1.0, "-"),
                      "mode_compliance": ParameterSpec(lambda a: g(a).compliance, "linear",
-                                                      probe.strength_scale(strength), "m/N")}
+                                                      probe.strength_scale(strength), "m/N"),
+                     "mode_stack_compliance": ParameterSpec(
+                         lambda a: g(a).stack_compliance, "linear",
+                         probe.strength_scale(strength), "m/N")}
 
     def implausible(self, params):
         zeta = params.get("mode_damping", 0.0)
@@ -52,3 +58,10 @@ class StructuralModeEntry(CatalogueEntry):
 
     def carry(self, init, fitted):
         return carry_extensions(init, fitted)
+
+    def describe(self, params: dict[str, float]) -> str:
+        return (f"structural mode: {params.get('mode_frequency', float('nan')):.4g} Hz, "
+                f"damping ratio {params.get('mode_damping', float('nan')):.3g}, excited "
+                f"by the contact force ({params.get('mode_compliance', 0.0) * 1e9:.3g} "
+                f"nm/N) and by the stack's push on its base "
+                f"({params.get('mode_stack_compliance', 0.0) * 1e9:.3g} nm/N)")
