@@ -219,7 +219,7 @@ def test_a_budgeted_refit_whose_second_stage_would_pass_the_budget_is_skipped_th
     assert over.value.need == pytest.approx(need) and len(second) == 1
 
     setup = RefitSetup(problem, baseline_free(attached, problem.data, problem.fix),
-                       n_base=columns - 1, max_steps=5, identify_max_steps=5,
+                       n_base=columns - len(entry_specs), max_steps=5, identify_max_steps=5,
                        carry_on_steps=5)
     at = RoundStart(act=attached, rss=1e4, nrmse=0.0, excess=1e4, reserve=0.0)
     held = HeldSizing(attached, entry_specs, None, np.zeros(1), 9e3, True)

@@ -118,11 +118,6 @@ def carry_extensions(init: Actuator, fitted: Actuator) -> Actuator:
     return init
 
 
-def carry_slider_load(init: Actuator, fitted: Actuator) -> Actuator:
-    """``init`` with ``fitted``'s constant external force ``F_ext`` [N]."""
-    return eqx.tree_at(lambda a: a.slider.F_ext, init, fitted.slider.F_ext)
-
-
 def carry_friction(init: Actuator, fitted: Actuator) -> Actuator:
     """``init`` with ``fitted``'s friction law, less the baseline's own friction
     quantities (those its steps fit by default: rho0 and z_ba for the paper's law),
