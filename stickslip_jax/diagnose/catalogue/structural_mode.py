@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from typing import final
 
+import numpy as np
+
 from ...identify.parameters import ParameterSpec
 from ...model.extensions import StructuralMode
 from .base import CatalogueEntry, Probe
@@ -58,6 +60,26 @@ class StructuralModeEntry(CatalogueEntry):
 
     def carry(self, init, fitted):
         return carry_extensions(init, fitted)
+
+    def plot_form(self, ax, params: dict[str, float]) -> bool:
+        """The mode's response [nm/N] to each place it is excited from, against the
+        frequency: ``|c| / |1 − (f/f0)² + 2iζ·f/f0|``."""
+        f0 = params.get("mode_frequency", float("nan"))
+        zeta = params.get("mode_damping", float("nan"))
+        if not np.isfinite(f0) or not np.isfinite(zeta):
+            return False
+        f = np.geomspace(0.1 * f0, 10.0 * f0, 400)
+        shape = 1.0 / np.abs(1.0 - (f / f0) ** 2 + 2j * zeta * f / f0)
+        for key, label, colour in (("mode_compliance", "contact force", "tab:blue"),
+                                   ("mode_stack_compliance", "stack's push", "tab:orange")):
+            c = abs(params.get(key, 0.0))
+            if c > 0:
+                ax.loglog(f, c * shape * 1e9, color=colour, label=label)
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel("base motion per force [nm/N]")
+        ax.set_title(f"structural mode {f0:.4g} Hz, ζ {zeta:.3g}", fontsize=9)
+        ax.legend(fontsize=7)
+        return True
 
     def describe(self, params: dict[str, float]) -> str:
         return (f"structural mode: {params.get('mode_frequency', float('nan')):.4g} Hz, "

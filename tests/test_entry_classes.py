@@ -1,5 +1,5 @@
-"""Sensor drift as a class (stickslip_jax/diagnose/catalogue/sensor_drift.py): a linear
-drift beside settling terms on a grid of time constants from the recordings."""
+"""Sensor drift and the structural mode as classes (stickslip_jax/diagnose/catalogue/
+sensor_drift.py, structural_mode.py): what they fit and what the report says of it."""
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -87,4 +87,22 @@ def test_the_report_says_and_draws_the_drift_found():
     assert entry.plot_form(ax, params)
     drawn = ax.lines[0].get_ydata()
     assert drawn[-1] == pytest.approx(end * 1e9, rel=1e-3)
+    plt.close(fig)
+
+
+def test_the_structural_mode_says_and_draws_both_excitations():
+    entry = candidate("structural_mode")
+    params = {"mode_frequency": 5500.0, "mode_damping": 0.02, "mode_compliance": 1e-8,
+              "mode_stack_compliance": -5e-8}
+    said = entry.describe(params)
+    assert "5500 Hz" in said and "contact force (10 nm/N)" in said and "(-50 nm/N)" in said
+    fig, ax = plt.subplots()
+    assert entry.plot_form(ax, params)
+    contact, stack = (line.get_ydata() for line in ax.lines)
+    f = ax.lines[0].get_xdata()
+    # Static well below the mode; near it the static response over 2ζ.
+    assert contact[0] == pytest.approx(10.0, rel=0.02)
+    assert np.max(stack) == pytest.approx(50.0 / (2 * 0.02), rel=0.05)
+    assert f[np.argmax(stack)] == pytest.approx(5500.0, rel=0.01)
+    np.testing.assert_allclose(stack / contact, 5.0)
     plt.close(fig)
