@@ -106,3 +106,27 @@ def test_the_structural_mode_says_and_draws_both_excitations():
     assert f[np.argmax(stack)] == pytest.approx(5500.0, rel=0.01)
     np.testing.assert_allclose(stack / contact, 5.0)
     plt.close(fig)
+
+
+def test_the_rate_lag_entry_frees_the_form_and_says_the_lag_found():
+    from stickslip_jax.diagnose.catalogue.rate_dependent_hysteresis import SAT_VOLTS, sat_name
+    from stickslip_jax.model.extensions import RateLagForm
+
+    entry = candidate("rate_dependent_hysteresis")
+    act = ss.lu2015_slc1720()
+    probe = entry.probes(act, {})[2]
+    attached, specs = entry.attach(act, 2e-9, probe)
+    form = attached.extensions[-1]
+    assert isinstance(form, RateLagForm) and float(form.tau) == probe.setting["tau"]
+    assert list(specs) == ["rate_gain", "rate_tau"] + [sat_name(v) for v in SAT_VOLTS]
+    assert all(specs[sat_name(v)].kind == "nonneg" for v in SAT_VOLTS)
+    # A lag saturating at 3 V: 2 nm/V·3 V·tanh(d/3 V).
+    params = {"rate_gain": 0.0, "rate_tau": 2e-4} | {sat_name(v): 0.0 for v in SAT_VOLTS}
+    params[sat_name(3.0)] = 2e-9
+    said = entry.describe(params)
+    assert "saturating 2 nm/V to 3 V" in said
+    assert f"{2 * 3 * np.tanh(10 / 3):.3g} nm at 10 V" in said
+    fig, ax = plt.subplots()
+    assert entry.plot_form(ax, params)
+    assert ax.lines[0].get_ydata()[-1] == pytest.approx(6.0, rel=1e-3)  # 6 nm at 40 V
+    plt.close(fig)

@@ -17,6 +17,7 @@ from stickslip_jax.model.extensions import (
     ExponentialDrift,
     LowPassInput,
     RateDependentStroke,
+    RateLagForm,
     SensorOutput,
     StructuralMode,
     delayed,
@@ -302,3 +303,27 @@ def test_a_mode_excited_by_the_stack_is_the_independent_reaction_mode(saw):
     q3 = np.asarray(ss.simulate(both, u, dt=rec.dt))
     q4 = np.asarray(ss.simulate(contact, u, dt=rec.dt))
     np.testing.assert_allclose(q3 - q0, (q1 - q0) + (q4 - q0), rtol=0, atol=1e-12)
+
+
+def test_the_rate_lag_class_holds_the_first_order_and_the_saturating_lag(saw):
+    """RateLagForm: its linear term alone is the first-order RateDependentStroke; one
+    saturating term alone is the test generator's independent SaturatingRateStroke
+    (stickslip_jax/testing/effects.py)."""
+    from stickslip_jax.testing.effects import SaturatingRateStroke
+
+    rec, u = saw
+    base = ss.lu2015_slc1720()
+    w = float(base.hysteresis.weights[0])
+
+    def q(ext):
+        return np.asarray(ss.simulate(base.with_extension(ext), u, dt=rec.dt))
+
+    first = q(RateDependentStroke(0.05 * w, 0.2e-3))
+    np.testing.assert_allclose(q(RateLagForm(0.05 * w, 0.2e-3, (0.0, 0.0), (1.0, 3.0))), first,
+                               rtol=0, atol=1e-15)
+    saturating = q(SaturatingRateStroke(0.05 * w, 0.2e-3, 3.0))
+    np.testing.assert_allclose(q(RateLagForm(0.0, 0.2e-3, (0.0, 0.05 * w), (1.0, 3.0))),
+                               saturating, rtol=0, atol=1e-15)
+    assert np.max(np.abs(saturating - first)) > 1e-9  # the two forms differ by nanometres
+    with pytest.raises(ValueError, match="one saturating gain per voltage"):
+        RateLagForm(0.0, 1e-4, (0.0,), (1.0, 3.0))

@@ -13,7 +13,8 @@ Input stages (voltage reaching the piezo):
     :class:`ParallelInputs` (stages side by side).
 Extensions (own states and additive terms):
     :class:`Creep` (first-order creep of the stroke), :class:`RateDependentStroke`
-    (stroke lag proportional to the voltage rate), :class:`CreepSpectrum` (creep as a
+    (stroke lag proportional to the voltage rate), :class:`RateLagForm` (that lag,
+    linear or saturating in the voltage lag), :class:`CreepSpectrum` (creep as a
     Prony series on a fixed grid of time constants), :class:`StructuralMode` (a mount
     resonance seen by the sensor), :class:`SaturatingViscosity` (friction against the
     sliding velocity on a grid of saturation speeds),
@@ -22,7 +23,7 @@ Extensions (own states and additive terms):
     :class:`LearnedForce` (the data-driven correction: sparse regression over a
     library of state features).
 Output maps (what the sensor makes of q):
-    :class:`SensorOutput` (delay and linear drift), :class:`ExponentialDrift`,
+    :class:`SensorOutput` (delay, linear drift and settling terms), :class:`ExponentialDrift`,
     :class:`PeriodicSensorError` (interferometer nonlinearity, no catalogue entry),
     :class:`ChainedOutput`.
 """
@@ -317,6 +318,56 @@ class RateDependentStroke(_FirstOrder):
 
     def terms(self, state, core, drive):
         return ExtensionTerms(stroke=-jnp.sum(self.gain * (core.u - state)))
+
+
+class RateLagForm(AbstractExtension):
+    """Rate-dependent hysteresis as a class: the voltage lag ``d = u − s`` of a first-order
+    follower ``τ·ṡ = u − s`` shapes the stroke's lag as ``gain·d + Σ g_k·V_k·tanh(d/V_k)``,
+    a linear term beside saturating ones on a fixed grid of voltages: the first-order
+    lag of :class:`RateDependentStroke` (the linear term alone), a lag that stops
+    growing with the rate beyond some volts of lag (one saturating term), or a curve
+    between them. One state, ``s``; at rest ``s = u``.
+
+    The saturating gains are a tuple of scalars, so that a fit can free each one; the
+    voltages are the fixed grid.
+
+    Attributes: ``gain`` [m/V], ``tau`` [s], ``sat_gains`` g_k [m/V], ``sat_volts`` V_k
+    [V].
+    """
+
+    gain: Float[Array, ""]
+    tau: Float[Array, ""]
+    sat_gains: tuple
+    sat_volts: Float[Array, " k"]
+
+    def __init__(self, gain, tau, sat_gains=(), sat_volts=()):
+        self.gain, self.tau = _f(gain), _f(tau)
+        self.sat_gains = tuple(_f(g) for g in sat_gains)
+        self.sat_volts = jnp.asarray(sat_volts, dtype=float).reshape(-1)
+        if len(self.sat_gains) != self.sat_volts.size:
+            raise ValueError(f"RateLagForm needs one saturating gain per voltage, got "
+                             f"{len(self.sat_gains)} and {self.sat_volts.size}")
+
+    @property
+    def n_states(self) -> int:
+        return 1
+
+    def initial_state(self, u0):
+        return jnp.atleast_1d(_f(u0))
+
+    def rate(self, state, core, drive):
+        return (core.u - state) / self.tau
+
+    def lag(self, d):
+        """The stroke's lag [m] at voltage lags ``d`` [V]."""
+        out = self.gain * d
+        for k, g in enumerate(self.sat_gains):
+            v = self.sat_volts[k]
+            out = out + g * v * jnp.tanh(d / v)
+        return out
+
+    def terms(self, state, core, drive):
+        return ExtensionTerms(stroke=-self.lag(core.u - state[0]))
 
 
 class StructuralMode(AbstractExtension):
