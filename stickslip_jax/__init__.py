@@ -69,6 +69,7 @@ from .model.extensions import (
     SaturatingViscosity,
     SecondOrderInput,
     SensorOutput,
+    ShapedSlewInput,
     SlewLimitedInput,
     StructuralMode,
 )
@@ -176,7 +177,7 @@ __all__ = [
     "PeriodicSensorError", "PositionRipple", "RateDependentStroke", "RateLagForm",
     "SaturatingViscosity", "SecondOrderInput",
     "SensorOutput",
-    "SlewLimitedInput", "ClippedSlewInput", "ParallelInputs", "StructuralMode",
+    "SlewLimitedInput", "ClippedSlewInput", "ShapedSlewInput", "ParallelInputs", "StructuralMode",
     "DriveChoice", "DriveGrid", "VelocityMap", "ZbaPoints", "ZbaSurface", "drive_for_velocity",
     "fit_zba_points", "fit_zba_surface", "load_zba_surface", "step_vs_amplitude",
     "velocity_map", "with_zba_surface", "zero_amplitude_threshold",

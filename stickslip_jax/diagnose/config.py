@@ -48,6 +48,10 @@ class DiagnoseConfig:
     refined one if that is within it (:mod:`.hysteresis_shape`)."""
     refine_steps: int = 15
     """Steps of that refinement's polish at most."""
+    refine_forms: bool = True
+    """After an accepted entry that leaves the model beyond the tolerance, refit its
+    richer forms within its class and keep one the acceptance rules would
+    (:mod:`.form_refinement`)."""
     size_steps: int = 15
     """Steps of a sizing at most (an entry's 1-3 parameters, the baseline held or free
     to first order: :mod:`.sizing`)."""

@@ -111,6 +111,7 @@ from ..significance import Significance
 from .budget import UNIT, Budget
 from .catalogue import CATALOGUE, Candidate
 from .config import DEFAULT_CONFIG, DiagnoseConfig
+from .form_refinement import refine_forms
 from .holdout import held_out_cost
 from .hysteresis_shape import with_refined_hysteresis
 from .learned import fit_learned
@@ -627,6 +628,18 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         nrmse_now = best.nrmse_after
         if best.adequate:
             break
+        # The accepted entries' forms within their classes (a tanh slew limit's corner
+        # freed, ...): a residue of the fitted form is not another effect's.
+        if config.refine_forms:
+            refined_act, rss = refine_forms(problem, act, rss, accepted, hints,
+                                            significance=significance, policy=policy,
+                                            max_steps=max_steps, notes=notes)
+            if refined_act is not act:
+                act = refined_act
+                nrmse = problem.evaluate(act)[1]
+                nrmse_now = float(nrmse.mean())
+                if significance.adequate(rss, problem.chi2_per_recording(nrmse)):
+                    break
         # The loop's shape after the entries: an effect hidden under a hysteresis on
         # another grid than the baseline's leaves, once named, the grid's residue,
         # which no entry is for (phase 1b could not tell it while the effect was

@@ -10,6 +10,7 @@ signature is a derivative at zero.
 Input stages (voltage reaching the piezo):
     :class:`LowPassInput` (first order), :class:`SecondOrderInput` (two poles),
     :class:`SlewLimitedInput` (slew-rate limit), :class:`ClippedSlewInput` (hard limit),
+    :class:`ShapedSlewInput` (a slew limit with a fitted corner),
     :class:`ParallelInputs` (stages side by side).
 Extensions (own states and additive terms):
     :class:`Creep` (first-order creep of the stroke), :class:`RateDependentStroke`
@@ -169,6 +170,57 @@ class ClippedSlewInput(SlewLimitedInput):
         return jnp.clip((u_command - state) / self.tau, -self.slew, self.slew)
 
     # Not the tanh form's exact step: RK4 steps of the clipped rate (it makes data).
+    advance = AbstractInputStage.advance
+
+
+def shaped_saturation(x, sharpness):
+    """``sign(x)·tanh(|x|^p)^(1/p)`` for ``p = sharpness`` [-]: slope 1 at 0 and
+    saturation at ±1 for every ``p > 0``; ``p = 1`` is ``tanh x``, ``p → ∞`` the hard
+    clip ``clip(x, −1, 1)``, ``p < 1`` softer corners than tanh.
+
+    Written as ``x·exp(g(L)/p)`` with ``L = p·ln|x|`` and ``g(L) = ln tanh(e^L) − L``
+    (``ln(tanh y / y)`` at ``y = |x|^p``), each branch where it neither overflows nor
+    cancels: ``g ≈ −e^(2L)/3`` far below the corner, ``g = −L`` (``tanh y = 1`` to
+    rounding) far above it. ``x = 0`` takes the lower branch with its derivatives, so
+    the slope at rest is 1 and the derivative in ``p`` there is 0 (not ``0·(−∞)``).
+    """
+    ax = jnp.abs(x)
+    positive = ax > 0
+    log_ax = jnp.log(jnp.where(positive, ax, 1.0))
+    big_l = jnp.where(positive, sharpness * log_ax, -800.0)
+    low, high = -20.0, 4.0
+    below = jnp.minimum(big_l, low)
+    middle = jnp.clip(big_l, low, high)
+    g = jnp.where(big_l < low, -jnp.exp(2 * below) / 3,
+                  jnp.where(big_l > high, -big_l,
+                            jnp.log(jnp.tanh(jnp.exp(middle))) - middle))
+    return x * jnp.exp(g / sharpness)
+
+
+class ShapedSlewInput(SlewLimitedInput):
+    """Drive amplifier with a slew-rate limit whose corner the data decide:
+    ``ṡ = S·σ_p((u − s)/(S·τ))`` with :func:`shaped_saturation` ``σ_p``.
+
+    The slew-limit class: small differences follow the command with time constant
+    ``τ`` for every ``p``, large ones at ``S`` at most; ``p = 1`` is
+    :class:`SlewLimitedInput`'s tanh, a large ``p`` a current-limited amplifier's hard
+    clip (:class:`ClippedSlewInput`), so a refit can start at the tanh form's optimum
+    and move the corner continuously. No closed-form step: the drive path takes RK4
+    steps of its rate (:mod:`stickslip_jax.drive_path`).
+
+    Attributes: ``slew`` S [V/s], ``tau`` [s], ``sharpness`` p [-], ``mix`` [-].
+    """
+
+    sharpness: Float[Array, ""]
+
+    def __init__(self, slew, tau, sharpness=1.0, mix=1.0):
+        super().__init__(slew, tau, mix)
+        self.sharpness = _f(sharpness)
+
+    def rate(self, state, u_command):
+        x = (u_command - state) / (self.slew * self.tau)
+        return self.slew * shaped_saturation(x, self.sharpness)
+
     advance = AbstractInputStage.advance
 
 

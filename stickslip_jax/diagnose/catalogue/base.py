@@ -109,3 +109,14 @@ class CatalogueEntry(abc.ABC):
         too rugged in a nonlinear parameter for the first-order strength to be a usable
         start; none by default."""
         return []
+
+    def refined_forms(self, act: Actuator,
+                      hints: dict) -> list[tuple[Actuator, dict[str, ParameterSpec]]]:
+        """Richer forms of the class, for a model ``act`` that holds this entry's
+        refitted component (``hints`` as :meth:`probes`'): each ``(start, specs)``
+        equals ``act`` at its start (the richer form's extra parameter at the value
+        that reduces it to the fitted one) and frees ``specs`` (the component's
+        parameters and the new one). Tried after the entry is accepted and leaves the
+        model beyond the noise tolerance (:mod:`~stickslip_jax.diagnose.
+        form_refinement`); none by default."""
+        return []

@@ -13,6 +13,7 @@ from ...model.extensions import (
     LowPassInput,
     ParallelInputs,
     SecondOrderInput,
+    ShapedSlewInput,
     SlewLimitedInput,
 )
 from ...model.stages import IdentityInput
@@ -124,6 +125,36 @@ class DriveBandwidthEntry(CatalogueEntry):
                                                 "-")}
         return [(eqx.tree_at(lambda a: a.input_stage, act, SecondOrderInput(f0, zeta)), specs)
                 for f0 in np.geomspace(3e3, 20e3, 6) for zeta in (0.3, 0.5, 0.7)]
+
+    def refined_forms(self, act, hints):
+        """A tanh slew limit's corner freed (:class:`ShapedSlewInput` from sharpness 1,
+        the tanh itself): a current-limited amplifier follows the command linearly up
+        to its slew rate and then exactly at it, a corner no tanh reaches (on the
+        concealed hard-limited set the tanh's best, the baseline at its truth, leaves
+        mean (e/σ)² 3.3; the shaped form reaches the noise). Other stages have none."""
+        stage = act.input_stage
+        if type(stage) is not SlewLimitedInput or float(stage.mix) != 1.0:
+            return []
+        start = eqx.tree_at(lambda a: a.input_stage, act,
+                            ShapedSlewInput(stage.slew, stage.tau, 1.0))
+        return [(start, {
+            "drive_slew": ParameterSpec(lambda a: a.input_stage.slew, "log", 1.0, "V/s"),
+            "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s",
+                                       floor=min(SLEW_TAU_FLOOR_SHARE
+                                                 * float(hints.get("sample_interval_s", 0.0)),
+                                                 float(stage.tau))),
+            "drive_sharpness": ParameterSpec(lambda a: a.input_stage.sharpness, "log", 1.0,
+                                             "-")})]
+
+    def describe(self, params):
+        p = params.get("drive_sharpness")
+        if p is None or "drive_slew" not in params:
+            return ""
+        at_corner = float(np.tanh(1.0)) ** (1.0 / p)
+        return (f"slew limit {params['drive_slew'] * 1e-6:.3g} V/µs after a "
+                f"{params['drive_tau'] * 1e6:.3g} µs small-signal lag, corner sharpness "
+                f"{p:.3g}: at a lag of S·τ it slews at {100 * at_corner:.0f} % of S (a tanh "
+                f"76 %, a hard clip 100 %)")
 
     def carry(self, init, fitted):
         return carry_input_stage(init, fitted)
