@@ -130,3 +130,53 @@ def test_the_rate_lag_entry_frees_the_form_and_says_the_lag_found():
     assert entry.plot_form(ax, params)
     assert ax.lines[0].get_ydata()[-1] == pytest.approx(6.0, rel=1e-3)  # 6 nm at 40 V
     plt.close(fig)
+
+
+def test_a_fitted_mode_offers_a_bank_with_one_more_at_a_residual_peak_away_from_it():
+    from stickslip_jax.diagnose.catalogue.structural_mode import MAX_MODES
+    from stickslip_jax.model.extensions import StructuralMode
+    from stickslip_jax.synthetic import DriveSpec
+
+    entry = candidate("structural_mode")
+    base = ss.lu2015_slc1720()
+    one = base.with_extension(StructuralMode(3000.0, 0.04, 2e-8, -1e-8))
+    # The peak a sixth of an octave from the fitted mode is its own misfit; the next one.
+    [(start, specs)] = entry.refined_forms(one, {"peaks_Hz": [3400.0, 7100.0, 1200.0]})
+    modes = [e for e in start.extensions if isinstance(e, StructuralMode)]
+    assert [float(m.frequency) for m in modes] == [3000.0, 7100.0]
+    assert float(modes[1].compliance) == 0.0 == float(modes[1].stack_compliance)
+    assert list(specs) == [f"{p}{k}" for p in ("mode_", "mode2_")
+                           for k in ("frequency", "damping", "compliance", "stack_compliance")]
+    assert float(specs["mode2_frequency"].getter(start)) == 7100.0
+    assert float(specs["mode_compliance"].getter(start)) == 2e-8
+    assert specs["mode2_compliance"].scale == 2e-8
+    # The start is the fitted model: the new mode at zero compliance adds nothing.
+    rec = DriveSpec("sawtooth", 40.0, frequency_Hz=500.0, direction="forward",
+                    duration_s=0.006).recording()
+    u = jnp.asarray(rec.voltage_V)
+    np.testing.assert_allclose(ss.simulate(start, u, dt=rec.dt), ss.simulate(one, u, dt=rec.dt),
+                               rtol=0, atol=1e-11)
+    # No peak far enough, no mode fitted, or the bank full: nothing to offer.
+    assert entry.refined_forms(one, {"peaks_Hz": [2700.0]}) == []
+    assert entry.refined_forms(base, {"peaks_Hz": [7100.0]}) == []
+    full = one
+    for f in (6000.0, 12000.0)[:MAX_MODES - 1]:
+        full = full.with_extension(StructuralMode(f, 0.03, 1e-8))
+    assert entry.refined_forms(full, {"peaks_Hz": [1000.0]}) == []
+
+
+def test_a_bank_of_modes_is_said_drawn_and_judged_mode_by_mode():
+    entry = candidate("structural_mode")
+    params = {"mode_frequency": 3000.0, "mode_damping": 0.03, "mode_compliance": 2e-8,
+              "mode_stack_compliance": 0.0, "mode2_frequency": 7100.0, "mode2_damping": 0.05,
+              "mode2_compliance": 0.0, "mode2_stack_compliance": 4e-8}
+    said = entry.describe(params)
+    assert said.startswith("2 structural modes") and "3000 Hz" in said and "7100 Hz" in said
+    assert "(40 nm/N)" in said
+    assert entry.implausible(params) == ""
+    assert "mode 2" in entry.implausible({**params, "mode2_damping": 0.5})
+    fig, ax = plt.subplots()
+    assert entry.plot_form(ax, params)
+    assert len(ax.lines) == 2  # one excitation each
+    assert "7100 Hz" in ax.get_title()
+    plt.close(fig)

@@ -631,7 +631,10 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         # The accepted entries' forms within their classes (a tanh slew limit's corner
         # freed, ...): a residue of the fitted form is not another effect's.
         if config.refine_forms:
-            refined_act, rss = refine_forms(problem, act, rss, accepted, hints,
+            # The hints where the model now stands (a second mode's residual peak shows
+            # once the first is fitted).
+            hints_now = _locate(problem, problem.evaluate(act)[2], config)[2]
+            refined_act, rss = refine_forms(problem, act, rss, accepted, hints_now,
                                             significance=significance, policy=policy,
                                             max_steps=max_steps, notes=notes)
             if refined_act is not act:
