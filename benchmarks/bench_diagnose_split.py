@@ -35,6 +35,7 @@ and the confusion matrix.
 """
 
 import argparse
+import ast
 import dataclasses
 import json
 import re
@@ -374,6 +375,20 @@ def save(path: Path | None, meta: dict, rows: list[dict]) -> None:
                                     "summary": summary(rows)}, indent=1, default=float))
 
 
+def config_changes(items: list[str]) -> dict:
+    """``FIELD=VALUE`` items as :class:`DiagnoseConfig` changes (values as Python
+    literals); a field it does not have is an error."""
+    fields = {f.name for f in dataclasses.fields(DiagnoseConfig)}
+    changes = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in fields:
+            sys.exit(f"--config {item!r}: give FIELD=VALUE with FIELD one of "
+                     f"{', '.join(sorted(fields))}")
+        changes[name] = ast.literal_eval(value)
+    return changes
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=sorted(SEEDS), required=True)
@@ -399,7 +414,11 @@ def main() -> None:
                          "entry (candidates_by_round's refit_pass)")
     ap.add_argument("--with", dest="with_", default="", metavar="PASS[,PASS]",
                     help="opt-in refit passes added after the default ones (carry_on)")
+    ap.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE",
+                    help="an ablation of a DiagnoseConfig switch or setting, e.g. "
+                         "refine_forms=False (the value as a Python literal)")
     args = ap.parse_args()
+    changes = config_changes(args.config)
     without = tuple(p for p in args.without.split(",") if p)
     added = tuple(p for p in args.with_.split(",") if p)
     if args.scale_strength != 1.0 and (args.split not in DEV_SPLITS
@@ -416,6 +435,8 @@ def main() -> None:
         meta["without_passes"] = list(without)
     if added:
         meta["with_passes"] = list(added)
+    if changes:
+        meta["config"] = {k: repr(v) for k, v in changes.items()}
     rows: list[dict] = []
     if args.json and args.json.exists():
         old = json.loads(args.json.read_text())
@@ -439,7 +460,8 @@ def main() -> None:
         spec = dataclasses.replace(spec, strength=spec.strength * args.scale_strength)
         print(f"== {spec.name}", flush=True)
         rows.append(run_one(spec, args.reduced,
-                            DiagnoseConfig().without(*without).with_passes(*added)))
+                            DiagnoseConfig(**changes).without(*without)
+                            .with_passes(*added)))
         r = rows[-1]
         print(json.dumps({k: r[k] for k in ("set", "hidden", "form", "effect_to_noise",
                                             "verdict", "named", "wall_s", "compile_s",
