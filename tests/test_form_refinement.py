@@ -82,7 +82,7 @@ def test_the_shaped_stage_is_the_tanh_at_one_and_the_hard_limit_when_sharp(saw):
     assert np.max(np.abs(sharp - hard)) < 0.02 * np.max(np.abs(hard - tanh))
 
 
-def test_the_drive_entry_offers_the_freed_corner_of_a_fitted_tanh_only():
+def test_the_drive_entry_offers_the_freed_corner_of_a_fitted_tanh():
     base = ss.lu2015_slc1720()
     entry = candidate("drive_bandwidth")
     act = eqx.tree_at(lambda a: a.input_stage, base, ss.SlewLimitedInput(1.3e6, 6e-6))
@@ -91,12 +91,42 @@ def test_the_drive_entry_offers_the_freed_corner_of_a_fitted_tanh_only():
     assert float(start.input_stage.sharpness) == 1.0
     assert set(specs) == {"drive_slew", "drive_tau", "drive_sharpness"}
     assert specs["drive_tau"].floor == pytest.approx(0.4e-6)
-    for other in (ss.LowPassInput(5e-6), ss.ClippedSlewInput(1e6, 5e-6),
-                  ss.SlewLimitedInput(1e6, 5e-6, 0.5)):
+    for other in (ss.SecondOrderInput(9e3, 0.5), ss.ClippedSlewInput(1e6, 5e-6),
+                  ss.SlewLimitedInput(1e6, 5e-6, 0.5), ss.LowPassInput(5e-6, 0.5)):
         assert entry.refined_forms(eqx.tree_at(lambda a: a.input_stage, base, other), {}) == []
     said = entry.describe({"drive_slew": 1.2e6, "drive_tau": 8e-6, "drive_sharpness": 40.0})
     assert "1.2 V/µs" in said and "8 µs" in said and "99 %" in said
     assert entry.describe({"drive_tau": 8e-6}) == ""
+
+
+def test_a_fitted_low_pass_gets_a_second_pole_that_starts_where_it_adds_nothing(saw):
+    u, dt = saw
+    base = ss.lu2015_slc1720()
+    entry = candidate("drive_bandwidth")
+    act = eqx.tree_at(lambda a: a.input_stage, base, ss.LowPassInput(2e-6))
+    [(start, specs)] = entry.refined_forms(act, {})
+    stages = start.input_stage.stages
+    assert [float(st.tau) for st in stages] == [2e-6, 0.5e-6]
+    assert [float(st.mix) for st in stages] == [1.0, 0.0]
+    assert set(specs) == {"drive_tau", "drive_mix", "drive_tau2", "drive_mix2"}
+    assert float(specs["drive_tau2"].getter(start)) == 0.5e-6
+    assert has_closed_form(start.input_stage)
+    q_act = np.asarray(ss.simulate(act, u, dt=dt))
+    np.testing.assert_allclose(ss.simulate(start, u, dt=dt), q_act, rtol=0, atol=1e-15)
+    # With the second pole mixed in, the trace moves: the form adds a shape.
+    moved = eqx.tree_at(lambda a: a.input_stage.stages[1].mix, start, jnp.asarray(0.5))
+    assert np.max(np.abs(np.asarray(ss.simulate(moved, u, dt=dt)) - q_act)) > 1e-10
+    params = {"drive_tau": 2e-6, "drive_mix": 1.0, "drive_tau2": 0.5e-6, "drive_mix2": 0.0}
+    # One pole of 2 µs: half power at 1/(2π·2 µs) = 79.6 kHz (the grid's resolution).
+    said = entry.describe(params)
+    assert "two real poles" in said and "79.6 kHz" in said
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    assert entry.plot_form(ax, params)
+    f, gain = ax.lines[0].get_xdata(), ax.lines[0].get_ydata()
+    np.testing.assert_allclose(gain, 1 / np.sqrt(1 + (2 * np.pi * f * 2e-6) ** 2), rtol=1e-12)
+    plt.close(fig)
+    assert not entry.plot_form(ax, {"drive_tau": 2e-6})
 
 
 # ---- the refinement after an accepted entry -------------------------------------------

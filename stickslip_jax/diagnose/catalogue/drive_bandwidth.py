@@ -40,6 +40,12 @@ hundredth) and a dev set's reached a better fit below a hundredth (27 847 agains
 diagnose_set03_slew_exact.json and diagnose_dev_slew_exact.json)."""
 
 
+SECOND_POLE_SHARE = 0.25
+"""Where a fitted low-pass's second pole starts, as a share of its time constant [-]:
+the refit moves it either way (a log quantity); started at the fitted pole it would be
+that pole's twin (no new shape to first order)."""
+
+
 @final
 class DriveBandwidthEntry(CatalogueEntry):
     """A slow drive in the input slot: a first-order low-pass (time constant [s]), a
@@ -127,26 +133,54 @@ class DriveBandwidthEntry(CatalogueEntry):
                 for f0 in np.geomspace(3e3, 20e3, 6) for zeta in (0.3, 0.5, 0.7)]
 
     def refined_forms(self, act, hints):
-        """A tanh slew limit's corner freed (:class:`ShapedSlewInput` from sharpness 1,
-        the tanh itself): a current-limited amplifier follows the command linearly up
-        to its slew rate and then exactly at it, a corner no tanh reaches (on the
-        concealed hard-limited set the tanh's best, the baseline at its truth, leaves
-        mean (e/σ)² 3.3; the shaped form reaches the noise). Other stages have none."""
+        """The drive stage's richer forms, each starting at the fitted one:
+
+        - a tanh slew limit gets its corner freed (:class:`ShapedSlewInput` from
+          sharpness 1, the tanh itself): a current-limited amplifier follows the command
+          linearly up to its slew rate and then exactly at it, a corner no tanh reaches
+          (on the concealed hard-limited set the tanh's best, the baseline at its truth,
+          leaves mean (e/σ)² 3.3; the shaped form reaches the noise);
+        - a first-order low-pass gets a second real pole beside it
+          (:class:`ParallelInputs` of two low-passes, ``u + Σ mᵢ·(sᵢ − u)``, the new one
+          at mix 0 and a quarter of the fitted time constant): with both mixes free,
+          ``H(s) = 1 − m₁ − m₂ + m₁/(1 + τ₁s) + m₂/(1 + τ₂s)``, two real poles and the
+          zeros their mix makes (a zero, a direct feed-through), unity gain at DC.
+
+        Other stages (the two-pole seeds, a refined one) have none."""
         stage = act.input_stage
-        if type(stage) is not SlewLimitedInput or float(stage.mix) != 1.0:
-            return []
-        start = eqx.tree_at(lambda a: a.input_stage, act,
-                            ShapedSlewInput(stage.slew, stage.tau, 1.0))
-        return [(start, {
-            "drive_slew": ParameterSpec(lambda a: a.input_stage.slew, "log", 1.0, "V/s"),
-            "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s",
-                                       floor=min(SLEW_TAU_FLOOR_SHARE
-                                                 * float(hints.get("sample_interval_s", 0.0)),
-                                                 float(stage.tau))),
-            "drive_sharpness": ParameterSpec(lambda a: a.input_stage.sharpness, "log", 1.0,
-                                             "-")})]
+        if type(stage) is SlewLimitedInput and float(stage.mix) == 1.0:
+            start = eqx.tree_at(lambda a: a.input_stage, act,
+                                ShapedSlewInput(stage.slew, stage.tau, 1.0))
+            floor = min(SLEW_TAU_FLOOR_SHARE * float(hints.get("sample_interval_s", 0.0)),
+                        float(stage.tau))
+            return [(start, {
+                "drive_slew": ParameterSpec(lambda a: a.input_stage.slew, "log", 1.0, "V/s"),
+                "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s",
+                                           floor=floor),
+                "drive_sharpness": ParameterSpec(lambda a: a.input_stage.sharpness, "log",
+                                                 1.0, "-")})]
+        if type(stage) is LowPassInput and float(stage.mix) == 1.0:
+            tau = float(stage.tau)
+            start = eqx.tree_at(lambda a: a.input_stage, act, ParallelInputs((
+                LowPassInput(tau, 1.0), LowPassInput(SECOND_POLE_SHARE * tau, 0.0))))
+
+            def part(i, name):
+                return lambda a: getattr(a.input_stage.stages[i], name)
+
+            return [(start, {
+                "drive_tau": ParameterSpec(part(0, "tau"), "log", 1.0, "s"),
+                "drive_mix": ParameterSpec(part(0, "mix"), "linear", 0.1, "-"),
+                "drive_tau2": ParameterSpec(part(1, "tau"), "log", 1.0, "s"),
+                "drive_mix2": ParameterSpec(part(1, "mix"), "linear", 0.1, "-")})]
+        return []
 
     def describe(self, params):
+        if "drive_tau2" in params:
+            f3 = _half_power_hz(params)
+            return (f"drive filter of two real poles: {params['drive_tau'] * 1e6:.3g} µs "
+                    f"(mix {params['drive_mix']:.3g}) and {params['drive_tau2'] * 1e6:.3g} µs "
+                    f"(mix {params['drive_mix2']:.3g}), unity gain at DC"
+                    + (f", half power at {f3 / 1e3:.3g} kHz" if np.isfinite(f3) else ""))
         p = params.get("drive_sharpness")
         if p is None or "drive_slew" not in params:
             return ""
@@ -156,5 +190,43 @@ class DriveBandwidthEntry(CatalogueEntry):
                 f"{p:.3g}: at a lag of S·τ it slews at {100 * at_corner:.0f} % of S (a tanh "
                 f"76 %, a hard clip 100 %)")
 
+    def plot_form(self, ax, params):
+        """The two-pole drive filter's gain against frequency (:func:`_response`)."""
+        if "drive_tau2" not in params:
+            return False
+        f = np.geomspace(10.0, 1e7, 600)
+        ax.loglog(f, np.abs(_response(params, f)), color="tab:blue")
+        f3 = _half_power_hz(params)
+        if np.isfinite(f3):
+            ax.axvline(f3, color="0.5", linestyle=":", label=f"half power {f3 / 1e3:.3g} kHz")
+            ax.legend(fontsize=7)
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel("piezo voltage per command [-]")
+        ax.set_title("drive filter found", fontsize=9)
+        return True
+
     def carry(self, init, fitted):
         return carry_input_stage(init, fitted)
+
+
+def _response(params, f):
+    """``H(2πif)`` of the two-pole drive filter of ``params`` (:meth:`DriveBandwidthEntry.
+    refined_forms`): ``1 − m₁ − m₂ + m₁/(1 + τ₁s) + m₂/(1 + τ₂s)``."""
+    s = 2j * np.pi * np.asarray(f)
+    m1, m2 = params["drive_mix"], params["drive_mix2"]
+    return (1 - m1 - m2 + m1 / (1 + params["drive_tau"] * s)
+            + m2 / (1 + params["drive_tau2"] * s))
+
+
+def _half_power_hz(params) -> float:
+    """The lowest frequency [Hz] where the two-pole filter's gain falls below 1/√2: on
+    a 1 Hz-100 MHz grid, interpolated in log gain against log frequency between the
+    grid points either side (NaN when it never falls there)."""
+    f = np.geomspace(1.0, 1e8, 4001)
+    log_gain = np.log(np.abs(_response(params, f)))
+    below = np.nonzero(log_gain < np.log(np.sqrt(0.5)))[0]
+    if not below.size or below[0] == 0:
+        return float("nan")
+    k = below[0]
+    w = (np.log(np.sqrt(0.5)) - log_gain[k - 1]) / (log_gain[k] - log_gain[k - 1])
+    return float(np.exp(np.log(f[k - 1]) + w * (np.log(f[k]) - np.log(f[k - 1]))))
