@@ -15,8 +15,8 @@ the end-to-end timing of the issue (target: < 10 min per 17-recording set).
 ``--variants`` runs instead the independent variants of
 :data:`stickslip_jax.testing.concealed.VARIANTS`: other functional forms and
 magnitudes of the effects (a second-order amplifier, a two-mode creep, a 2.2 kHz mode,
-an 8 µs delay, a negative load, ...) and an interferometer periodic error that no entry
-covers, simulated in memory on the same protocol (``--reduced``: the tests' 8-recording
+an 8 µs delay, a negative load, an interferometer periodic error of one sine, ...),
+simulated in memory on the same protocol (``--reduced``: the tests' 8-recording
 protocol), to check that the diagnosis is not tuned to the fixtures' generator.
 
 Columns: hidden effect, named effect (first accepted; ``unexplained`` when the verdict

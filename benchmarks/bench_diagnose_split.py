@@ -64,10 +64,10 @@ from bench_diagnose import REDUCED_SETTINGS, protocol, run_set  # noqa: E402
 SEEDS = {name: seed for name, (seed, _) in rs.SPLITS.items()}
 DEV_SPLITS = ("dev", "dev2")
 """The splits to develop on (the others are frozen test splits)."""
-HIDDEN = (*rs.EFFECTS, "none")
+HIDDEN = (*rs.CLASSES, "none")
 """Rows of the confusion matrix."""
 UNEXPLAINED, ADEQUATE = "unexplained", "adequate"
-COLUMNS = (*[n for n in NAMES if n in rs.EFFECTS], UNEXPLAINED, ADEQUATE)
+COLUMNS = (*[n for n in NAMES if n in rs.CLASSES], UNEXPLAINED, ADEQUATE)
 """Columns: the entry named first, else the verdict (unexplained residual, baseline
 adequate)."""
 BINS = (0.0, 0.3, 1.0, 3.0, 10.0, 30.0, np.inf)
@@ -107,7 +107,7 @@ def run_one(spec: rs.SetSpec, reduced: bool, config: DiagnoseConfig | None = Non
     row = run_set(spec.name, from_profile=True, recs=recs, config=config or DiagnoseConfig(),
                   **({"max_rounds": 3} | (REDUCED_SETTINGS if reduced else {})))
     row.update(
-        index=spec.index, hidden=spec.effect, form=spec.form, also=list(spec.also),
+        index=spec.index, hidden=spec.hidden[0], form=spec.form, also=list(spec.also),
         catalogue_form=spec.catalogue_form, strength=spec.strength,
         strength_name=spec.strength_name, strength_unit=spec.strength_unit,
         others=spec.others, noise_nm=1e9 * spec.noise_m,

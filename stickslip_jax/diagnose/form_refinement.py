@@ -97,9 +97,11 @@ def refine_forms(problem: Problem, act: Actuator, rss: float, accepted: Sequence
                              f"{problem.budget.skip(what, need)}.")
                 continue
             try:
+                # The start is the fitted model (the new parameters at their
+                # neutral values): nearly Gauss-Newton from the first step.
                 fitted, _, out = problem.refit(start, names, specs,
                                                label=f"refine {res.name}",
-                                               max_steps=max_steps)
+                                               max_steps=max_steps, initial_damping=1e-3)
             except ValueError as err:
                 notes.append(f"{what[0].upper()}{what[1:]}: not refitted ({err}).")
                 continue

@@ -381,7 +381,7 @@ class Problem:
         return np.asarray(r)
 
     def refit(self, act: Actuator, names: Sequence[str], specs: dict, *, label: str,
-              max_steps: int, reserve: float | None = None,
+              max_steps: int, reserve: float | None = None, initial_damping: float = 1.0,
               ) -> tuple[Actuator, float, object]:
         """:meth:`fit` over ``names`` in two stages: first with the quantities of
         :data:`HELD_FIRST` (the PI weights) held, then everything from there, starting
@@ -393,6 +393,8 @@ class Problem:
         steps that carry the entry to its strength are taken at about a third of the
         columns, and the full fit starts next to its optimum (typically 1-4 steps).
         Returns the second stage's result (its residual and Jacobian at the optimum).
+        ``initial_damping``: the first stage's LM damping at its start (small for a
+        start that is a fitted model with new parameters at their neutral values).
 
         Raises ValueError where it starts at, or ends at, a model the simulator cannot
         step on these data: a fit keeps the plan of its start, so it can walk into
@@ -413,10 +415,11 @@ class Problem:
         to a model with a 1.8 MHz mode)."""
         light = [n for n in names if n not in HELD_FIRST]
         if len(light) == len(names):
-            out = self.fit(act, names, specs, label=label, max_steps=max_steps)
+            out = self.fit(act, names, specs, label=label, max_steps=max_steps,
+                           initial_damping=initial_damping)
         else:
             act, _, _ = self.fit(act, light, specs, label=f"{label}, PI weights held",
-                                 max_steps=max_steps)
+                                 max_steps=max_steps, initial_damping=initial_damping)
 
             def within_budget(program: FitProgram) -> None:
                 need = fit_work(self.samples, int(np.size(program.pmap.zeros())),

@@ -47,7 +47,9 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate],
     """The current actuator with every applicable probe at zero strength, and the
     :class:`InstalledProbe` addressing each strength.
 
-    An entry's probes that are extensions of one class with a ``bank`` (several time
+    An entry's probes that share one spec (the coefficients of a vector quantity, the
+    k-th probe its element k) are one quantity. Its probes that are extensions of one
+    class with a ``bank`` (several time
     constants of creep or of the rate lag) go in as one bank extension, their strengths
     one vector: the same columns as one extension per probe (their states do not
     interact and their strokes add), from a program whose size does not grow with the
@@ -59,8 +61,12 @@ def install_probes(act: Actuator, candidates: Sequence[Candidate],
         groups: dict[object, list[Probe]] = {}
         for probe in cand.probes(act, hints):
             ext = probe.extension
-            key = ((type(ext), probe.field, probe.spec.scale, probe.spec.unit)
-                   if ext is not None and hasattr(type(ext), "bank") else id(probe))
+            if ext is not None and hasattr(type(ext), "bank"):
+                key = (type(ext), probe.field, probe.spec.scale, probe.spec.unit)
+            elif ext is None:  # probes sharing one spec: the elements of one vector
+                key = ("spec", id(probe.spec))
+            else:
+                key = id(probe)
             groups.setdefault(key, []).append(probe)
         for members in groups.values():
             probe = members[0]

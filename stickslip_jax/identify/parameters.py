@@ -116,12 +116,24 @@ def _kind(name: str, actuator: Actuator) -> tuple[str, float | None]:
     return p.fit_kind, p.scale
 
 
+def set_quantity(getter: Callable, tree, value):
+    """``tree`` with the quantity ``getter`` selects set to ``value``. A quantity that
+    is a tuple of scalars (coefficients a fit frees one by one, :class:`ParameterSpec`)
+    takes ``value``'s last axis, one element per scalar, so that the tree keeps its
+    structure."""
+    node = getter(tree)
+    if isinstance(node, tuple):
+        value = tuple(value[..., i] for i in range(len(node)))
+    return eqx.tree_at(getter, tree, value)
+
+
 @dataclass(frozen=True)
 class ParameterSpec:
     """How to fit a quantity that is not a built-in one (model extensions; a friction
     law's own parameters are built in through its :attr:`parameters`).
 
-    ``getter`` selects the leaf in the :class:`Actuator`; ``kind`` is one of ``log``,
+    ``getter`` selects the leaf in the :class:`Actuator` (or a tuple of scalar leaves:
+    one vector quantity, :func:`set_quantity`); ``kind`` is one of ``log``,
     ``softplus`` (non-negative, may start at 0), ``nonneg`` (non-negative, θ unit its
     start), ``linear`` (signed: ``value = start + scale·θ``); ``scale`` sets the θ
     unit of ``linear`` and ``softplus`` parameters and the size of a ``nonneg`` one's
@@ -326,7 +338,7 @@ class ParameterMap(eqx.Module):
         sl = self.slices()
         for p, getter in zip(self.free, self.getters, strict=True):
             value = p.to_physical(theta[sl[p.name]], xp=xp)
-            act = eqx.tree_at(getter, act, value if xp is jnp else jnp.asarray(value))
+            act = set_quantity(getter, act, value if xp is jnp else jnp.asarray(value))
         return act
 
     def physical(self, theta) -> dict[str, np.ndarray]:
@@ -358,5 +370,5 @@ class ParameterMap(eqx.Module):
             rows = np.zeros((self.size,) + np.shape(getter(self.start)))
             rows[sl[p.name]] = p.derivative(theta[sl[p.name]]).T.reshape(
                 (p.size,) + rows.shape[1:])
-            out = eqx.tree_at(getter, out, rows)
+            out = set_quantity(getter, out, rows)
         return out

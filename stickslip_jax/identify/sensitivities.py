@@ -125,7 +125,9 @@ def perturbed_mask(actuator, names: Sequence[str],
     mask = jax.tree.map(lambda _: False, actuator)
     for name in names:
         getter = specs[name].getter if name in specs else parameter_getter(name, actuator)
-        mask = eqx.tree_at(getter, mask, True)
+        node = getter(mask)  # a leaf, or a tuple of them (one vector quantity)
+        mask = eqx.tree_at(getter, mask, (True,) * len(node) if isinstance(node, tuple)
+                           else True)
     return mask
 
 

@@ -24,8 +24,9 @@ Extensions (own states and additive terms):
     :class:`LearnedForce` (the data-driven correction: sparse regression over a
     library of state features).
 Output maps (what the sensor makes of q):
-    :class:`SensorOutput` (delay, linear drift and settling terms), :class:`ExponentialDrift`,
-    :class:`PeriodicSensorError` (interferometer nonlinearity, no catalogue entry),
+    :class:`SensorOutput` (delay, linear drift and settling terms, a periodic error
+    of the fringe and its harmonics), :class:`ExponentialDrift`,
+    :class:`PeriodicSensorError` (one sine of the fringe: the test generators' form),
     :class:`ChainedOutput`.
 """
 
@@ -608,33 +609,55 @@ def delayed(t, q, delay):
     return (1.0 - frac) * a + frac * b
 
 
+HENE_FRINGE_M = 316.4e-9
+"""The displacement of one fringe of a HeNe laser (λ = 632.8 nm) in a single-pass
+Michelson interferometer, λ/2 [m]: the period of its first-order periodic error (a
+double-pass plane-mirror interferometer's fringe, λ/4, is its second harmonic)."""
+
+
 class SensorOutput(AbstractOutputMap):
-    """Interferometer with a delay and a drift: ``q(t − delay) + drift·t +
-    Σ a_i·(1 − exp(−t/T_i))``, the drift a linear term beside settling terms on a
+    """Interferometer with a delay, a drift and a periodic error:
+    ``p + drift·t + Σ a_i·(1 − exp(−t/T_i)) + Σ_k (c_k·cos(2πk·p/P) + s_k·sin(2πk·p/P))``
+    with ``p = q(t − delay)``. The drift is a linear term beside settling terms on a
     fixed grid of time constants (none by default): with amplitudes of either sign, a
     thermal drift that settles (one exponential, several, or a curve between them) as
-    well as a steady one. ``t`` is each recording's own time from its first sample.
+    well as a steady one; ``t`` is each recording's own time from its first sample.
+    The periodic error (none by default) is the interferometer's nonlinearity (mixing
+    of its polarisations or frequencies): periodic in the position it reads, of period
+    ``P`` (:data:`HENE_FRINGE_M`) and its harmonics, whatever its shape within the
+    period; its phase is that of ``p = 0`` (each recording's start in the simulated
+    protocols), shared by the recordings.
 
-    The amplitudes are a tuple of scalars, so that a fit can free each one; the time
-    constants are the fixed grid.
+    The amplitudes and coefficients are tuples of scalars, so that a fit can free each
+    one (``eqx.tree_at`` addresses tuple members); the time constants and the period
+    are fixed.
 
     Attributes: ``delay`` [s] (≥ 0), ``drift`` [m/s], ``settling`` a_i [m],
-    ``settle_times`` T_i [s].
+    ``settle_times`` T_i [s], ``periodic`` ``(c_1, s_1, c_2, s_2, ...)`` [m],
+    ``period`` P [m].
     """
 
     delay: Float[Array, ""]
     drift: Float[Array, ""]
     settling: tuple
     settle_times: Float[Array, " k"]
+    periodic: tuple
+    period: Float[Array, ""]
 
-    def __init__(self, delay=0.0, drift=0.0, settling=(), settle_times=()):
+    def __init__(self, delay=0.0, drift=0.0, settling=(), settle_times=(), periodic=(),
+                 period=HENE_FRINGE_M):
         self.delay = _f(delay)
         self.drift = _f(drift)
         self.settling = tuple(_f(a) for a in settling)
         self.settle_times = jnp.asarray(settle_times, dtype=float).reshape(-1)
+        self.periodic = tuple(_f(c) for c in periodic)
+        self.period = _f(period)
         if len(self.settling) != self.settle_times.size:
             raise ValueError(f"SensorOutput needs one settling amplitude per time constant, "
                              f"got {len(self.settling)} and {self.settle_times.size}")
+        if len(self.periodic) % 2:
+            raise ValueError(f"SensorOutput's periodic error needs a cosine and a sine "
+                             f"coefficient per harmonic, got {len(self.periodic)} values")
 
     def drift_at(self, t):
         """The drift [m] at times ``t`` [s] from the recording's start."""
@@ -643,8 +666,24 @@ class SensorOutput(AbstractOutputMap):
             out = out + a * (1.0 - jnp.exp(-t / self.settle_times[i]))
         return out
 
+    def periodic_error(self, p):
+        """The periodic error [m] at read positions ``p`` [m] (0 without harmonics)."""
+        # A score test's vector probe may set the coefficients as one array.
+        coef = jnp.reshape(jnp.asarray(self.periodic), (-1, 2))
+        lead = (1,) * jnp.ndim(p)  # harmonics on a last axis of their own
+        k = jnp.arange(1, coef.shape[0] + 1, dtype=float).reshape(lead + (-1,))
+        phase = (2.0 * jnp.pi / self.period) * p[..., None] * k
+        return jnp.sum(coef[:, 0].reshape(k.shape) * jnp.cos(phase)
+                       + coef[:, 1].reshape(k.shape) * jnp.sin(phase), axis=-1)
+
     def __call__(self, t, q):
-        return delayed(t, q, self.delay) + self.drift_at(t)
+        p = delayed(t, q, self.delay)
+        out = p + self.drift_at(t)
+        harmonics = (len(self.periodic) if isinstance(self.periodic, tuple)
+                     else self.periodic.size)
+        if harmonics:  # none: the sum of before, to the last bit
+            out = out + self.periodic_error(p)
+        return out
 
 
 class ExponentialDrift(AbstractOutputMap):
@@ -666,8 +705,9 @@ class ExponentialDrift(AbstractOutputMap):
 
 class PeriodicSensorError(AbstractOutputMap):
     """Periodic nonlinearity of a displacement interferometer (mixing of the two
-    polarisations): ``q + amplitude·sin(2π·q/period)``. Not in the diagnosis
-    catalogue; the concealed-variant generator uses it as an effect no entry names.
+    polarisations): ``q + amplitude·sin(2π·q/period)``. The test generators' form of
+    it, kept apart from :class:`SensorOutput`'s so that the data it makes are not the
+    fitted model's own.
 
     Attributes: ``amplitude`` [m], ``period`` [m] (λ/2 = 316.4 nm for a HeNe laser
     in a single-pass Michelson).

@@ -37,6 +37,7 @@ import numpy as np
 
 from ..model.actuator import Actuator
 from ..model.extensions import (
+    ChainedOutput,
     ClippedSlewInput,
     Creep,
     ExponentialDrift,
@@ -119,8 +120,12 @@ VARIANTS: dict[str, tuple[str, str]] = {
     "load_negative": ("external_load", "-0.02 N on the slider"),
     "rho1_small": ("contact_damping", "rho1 = 3 N·s/m"),
     "rate_fast": ("rate_dependent_hysteresis", "stroke lag 5 % at 0.12 ms"),
-    "interferometer_periodic": ("uncatalogued", "interferometer periodic error, 2.5 nm "
-                                                "at a 316.4 nm period"),
+    "interferometer_periodic": ("sensor_periodic", "interferometer periodic error, 2.5 "
+                                                   "nm at a 316.4 nm period, one sine"),
+    "interferometer_double_pass": ("sensor_periodic", "a double-pass interferometer's "
+                                                      "periodic error, 2.5 nm at 158.2 nm"),
+    "interferometer_skewed": ("sensor_periodic", "periodic error of 3 nm at 316.4 nm, then "
+                                                 "1.2 nm at a third of it on the reading"),
 }
 """Independent variants of the concealed effects: other functional forms and magnitudes
 than :func:`with_effect` (which the catalogue was developed on), to check that the
@@ -149,4 +154,9 @@ def with_variant(act: Actuator, variant: str) -> Actuator:
         return act.with_extension(RateDependentStroke(0.05 * w, 0.12e-3))
     if variant == "interferometer_periodic":
         return eqx.tree_at(lambda a: a.output_map, act, PeriodicSensorError(2.5e-9))
+    if variant == "interferometer_double_pass":
+        return eqx.tree_at(lambda a: a.output_map, act, PeriodicSensorError(2.5e-9, 158.2e-9))
+    if variant == "interferometer_skewed":
+        return eqx.tree_at(lambda a: a.output_map, act, ChainedOutput((
+            PeriodicSensorError(3e-9), PeriodicSensorError(1.2e-9, 316.4e-9 / 3))))
     raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")

@@ -97,6 +97,9 @@ none: null                  (the truth alone)
 The drive's weak ends are bounded by the cost of simulating a fast pole (a 0.4 µs
 stage takes 27x the sub-steps of the piezo's own 14.7 kHz mode).
 ``preload_dependence`` cannot show in this protocol (one preload); it is not drawn.
+The interferometer error was drawn as ``uncatalogued`` before the catalogue had the
+sensor's periodic error; it is drawn so still (the splits stay as drawn) and judged
+as the class ``sensor_periodic`` (:attr:`Form.named`, :attr:`SetSpec.hidden`).
 
 Effect size
 -----------
@@ -240,7 +243,9 @@ class Form:
     strength is, in ``unit`` (SI), log-uniform in ``[low, high]`` in magnitude,
     with a random sign when ``signed``; ``others`` the other parameters, each
     log-uniform in its ``(low, high)``; ``build(actuator, strength, others)`` the truth
-    with the effect.
+    with the effect; ``named`` the class a right diagnosis names when it is not
+    ``entry``: a form drawn as ``uncatalogued`` before the catalogue had its class (the
+    draws keep ``entry``, so that the frozen splits stay as they were drawn).
     """
 
     entry: str
@@ -253,6 +258,12 @@ class Form:
     build: Build
     signed: bool = False
     others: dict[str, tuple[float, float]] = field(default_factory=dict)
+    named: str = ""
+
+    @property
+    def right_name(self) -> str:
+        """The class a right diagnosis names (``uncatalogued``: none)."""
+        return self.named or self.entry
 
 
 def _friction(act: Actuator, new) -> Actuator:
@@ -408,7 +419,8 @@ FORMS: tuple[Form, ...] = (
          lambda a, s, o: _extend(a, PositionRipple(s, o["wavelength"])),
          others={"wavelength": (0.3e-6, 3e-6)}),
     Form("uncatalogued", "interferometer", False, "amplitude", "m", 0.36e-9, 36e-9,
-         lambda a, s, o: _output(a, PeriodicSensorError(s, 316.4e-9))),
+         lambda a, s, o: _output(a, PeriodicSensorError(s, 316.4e-9)),
+         named="sensor_periodic"),
     Form("uncatalogued", "coulomb_drag", False, "force", "N", 5e-5, 5e-3,
          lambda a, s, o: _extend(a, CoulombDrag(s, 1e-4))),
 )
@@ -419,6 +431,10 @@ NULL = Form("none", "null", False, "", "", 0.0, 0.0, lambda a, s, o: a)
 EFFECTS: tuple[str, ...] = tuple(dict.fromkeys(f.entry for f in FORMS))
 """The hidden effects other than none: the catalogue entries that can show in this
 protocol, then ``uncatalogued``."""
+
+CLASSES: tuple[str, ...] = tuple(dict.fromkeys(f.right_name for f in FORMS))
+"""The classes a right diagnosis names (``uncatalogued``: none): :data:`EFFECTS` and
+the classes of forms drawn as ``uncatalogued`` that the catalogue now has."""
 
 
 def forms_of(entry: str) -> tuple[Form, ...]:
@@ -476,8 +492,12 @@ class SetSpec:
 
     @property
     def hidden(self) -> tuple[str, ...]:
-        """Every effect hidden: :attr:`effect`, then those of :attr:`also`."""
-        return (self.effect, *(e["effect"] for e in self.also))
+        """The class of every effect hidden, as a right diagnosis names it
+        (:attr:`Form.right_name`): :attr:`effect`'s, then those of :attr:`also`."""
+        if self.effect == "none":
+            return ("none",)
+        return tuple(form(e, f).right_name for e, f in
+                     ((self.effect, self.form), *((e["effect"], e["form"]) for e in self.also)))
 
     @property
     def name(self) -> str:

@@ -33,6 +33,7 @@ from .preload_dependence import PreloadDependenceEntry
 from .rate_dependent_hysteresis import RateDependentHysteresisEntry
 from .sensor_delay import SensorDelayEntry
 from .sensor_drift import SensorDriftEntry
+from .sensor_periodic import SensorPeriodicEntry
 from .stribeck import StribeckEntry
 from .structural_mode import StructuralModeEntry
 from .viscous_friction import ViscousFrictionEntry
@@ -50,6 +51,7 @@ CATALOGUE: tuple[Candidate, ...] = (
     StructuralModeEntry(),
     SensorDelayEntry(),
     SensorDriftEntry(),
+    SensorPeriodicEntry(),
     ExternalLoadEntry(),
     PreloadDependenceEntry(),
 )
@@ -71,6 +73,7 @@ __all__ = [
     "CATALOGUE", "NAMES", "PROBE_TAU_DRIVE", "PROBE_TAU_SLEW", "Candidate", "CatalogueEntry",
     "ContactDampingEntry", "CreepEntry", "DriveBandwidthEntry", "ExternalLoadEntry",
     "PreloadDependenceEntry", "Probe", "RateDependentHysteresisEntry", "SensorDelayEntry",
-    "SensorDriftEntry", "StribeckEntry", "StructuralModeEntry", "ViscousFrictionEntry",
+    "SensorDriftEntry", "SensorPeriodicEntry", "StribeckEntry", "StructuralModeEntry",
+    "ViscousFrictionEntry",
     "candidate",
 ]

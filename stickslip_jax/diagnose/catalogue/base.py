@@ -16,7 +16,10 @@ from ...model.actuator import Actuator
 class Probe:
     """One zero-strength variant of an effect: ``install`` puts the component in the
     actuator at zero strength; ``spec`` addresses the strength (θ = 1 is ``spec.scale``
-    of it); ``sign`` +1 when only positive strengths are physical, 0 for any sign."""
+    of it); ``sign`` +1 when only positive strengths are physical, 0 for any sign.
+    Probes of one entry that share one ``spec`` object address the elements of one
+    vector quantity, the k-th of them element k (one quantity in the score test's
+    programs, :func:`~stickslip_jax.diagnose.scores.install_probes`)."""
 
     label: str
     install: Callable[[Actuator], Actuator] | None

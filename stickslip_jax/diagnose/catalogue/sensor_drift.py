@@ -12,6 +12,7 @@ settling amplitude at 0 (linear in them: the derivative there is what it is anyw
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import final
 
@@ -19,7 +20,6 @@ import equinox as eqx
 import numpy as np
 
 from ...identify.parameters import ParameterSpec
-from ...model.extensions import SensorOutput
 from .base import CatalogueEntry, Probe
 from .slots import carry_output_map, sensor_attr, with_sensor
 
@@ -77,8 +77,8 @@ class SensorDriftEntry(CatalogueEntry):
     def attach(self, act, strength, probe):
         sensor = with_sensor(act).output_map
         times = probe.setting.get("times", ())
-        new = eqx.tree_at(lambda a: a.output_map, act,
-                          SensorOutput(sensor.delay, strength, (0.0,) * len(times), times))
+        new = eqx.tree_at(lambda a: a.output_map, act, dataclasses.replace(
+            sensor, drift=strength, settling=(0.0,) * len(times), settle_times=times))
         rate_scale = probe.strength_scale(strength)
         # An amplitude's scale: what the linear drift reaches over the longest
         # recording's slowest share (its order of magnitude; the fit moves it).
