@@ -184,3 +184,4 @@ def test_a_periodic_error_of_another_shape_is_named_and_its_third_harmonic_found
     assert np.hypot(p["periodic_cos_3"], p["periodic_sin_3"]) == pytest.approx(1.2e-9,
                                                                              rel=0.05)
     assert abs(p["periodic_sin_2"]) < 0.2e-9
+

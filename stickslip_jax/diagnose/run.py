@@ -107,6 +107,7 @@ from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
 from ..model.hysteresis import PrandtlIshlinskii
 from ..noise import noise_sigma, noise_sigma_relative_se
+from ..precision import require_float64
 from ..significance import Significance
 from .budget import UNIT, Budget
 from .catalogue import CATALOGUE, Candidate
@@ -491,6 +492,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     skipped and said in the notes (:mod:`.budget`). No decision depends on wall time;
     ``timings`` are for display.
     """
+    require_float64("diagnose")
     config = (config or DEFAULT_CONFIG).replace(**changes)
     policy, max_steps, max_rounds = config.policy, config.max_steps, config.max_rounds
     top, fallback, work_budget = config.top, config.fallback, config.work_budget

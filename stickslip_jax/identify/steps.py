@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..model.actuator import Actuator
+from ..precision import require_float64
 from ..stepping import StepPlan
 from .dataset import Dataset
 from .informative import Assessment, assess
@@ -367,6 +368,7 @@ def identify(
     measure of the error than the standard errors then; a few joint fits more);
     ``echo`` receives progress lines.
     """
+    require_float64("identify")
     extra = dict(extra or {})
     say = echo or (lambda s: None)
     fix = dict(fix or {})
