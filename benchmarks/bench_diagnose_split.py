@@ -120,7 +120,17 @@ def run_one(spec: rs.SetSpec, reduced: bool, config: DiagnoseConfig | None = Non
     row["right_first"] = bool(row["named"]) and row["named"][0] in spec.hidden
     row["wrong_first"] = bool(row["named"]) and row["named"][0] not in spec.hidden
     row["wrong_any"] = any(n not in spec.hidden for n in row["named"])
+    row["right_place_first"] = right_place_first(row)
     return row
+
+
+def right_place_first(row: dict) -> bool:
+    """Whether a row's first name acts where a hidden effect acts (its class family,
+    :data:`~stickslip_jax.testing.random_sets.PLACES`: friction, stroke, drive stage,
+    structure, sensor, slider), beside the entry-level judgement: a saturating contact
+    damping named as friction against the sliding velocity is the right family."""
+    places = {rs.PLACES.get(h) for h in hidden_of(row)} - {None}
+    return bool(row["named"]) and rs.PLACES.get(row["named"][0]) in places
 
 
 # ---- summaries -------------------------------------------------------------------------
@@ -202,6 +212,9 @@ def summary(rows: list[dict]) -> dict:
             sum(r["outcome"] != ADEQUATE for r in rows if r["hidden"] != "none"
                 and above_limit(r) is False),
             sum(r["hidden"] != "none" and above_limit(r) is False for r in rows)),
+        "right_place_first_above_limit": _rate(
+            sum(right_place_first(r) for r in cat if above_limit(r)),
+            sum(bool(above_limit(r)) for r in cat)),
         "right_first_catalogue_form": _rate(
             sum(r["right_first"] for r in cat if r["catalogue_form"]),
             sum(r["catalogue_form"] for r in cat)),
@@ -261,7 +274,8 @@ def print_summary(rows: list[dict], s: dict) -> None:
               f"{work} | {r['wall_s']:.0f} s |")
     print("\n" + s["confusion_markdown"] + "\n")
     for k in ("null_false_positives", "null_unexplained", "wrong_name_first", "wrong_name_any",
-              "right_first", "right_first_above_limit", "flagged_below_limit",
+              "right_first", "right_first_above_limit", "right_place_first_above_limit",
+              "flagged_below_limit",
               "right_first_catalogue_form", "right_first_other_form",
               "uncatalogued_unexplained", "compound_all_named", "excess_halved_where_named"):
         print(f"- {k.replace('_', ' ')}: {_pct(s[k])}")

@@ -218,7 +218,7 @@ PLACES: dict[str, str] = {
     "stribeck": "friction", "viscous_friction": "friction", "contact_damping": "friction",
     "drive_bandwidth": "drive stage", "sensor_delay": "sensor", "sensor_drift": "sensor",
     "creep": "stroke", "rate_dependent_hysteresis": "stroke",
-    "structural_mode": "structure", "external_load": "slider",
+    "structural_mode": "structure", "external_load": "slider", "sensor_periodic": "sensor",
 }
 """Where each catalogue entry's effect acts: a compound set's second effect acts in
 another place than its first (two effects in one place would replace one another)."""
