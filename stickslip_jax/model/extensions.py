@@ -668,7 +668,8 @@ class SensorOutput(AbstractOutputMap):
 
     def periodic_error(self, p):
         """The periodic error [m] at read positions ``p`` [m] (0 without harmonics)."""
-        # A score test's vector probe may set the coefficients as one array.
+        # One array where a caller set the vector quantity with ``eqx.tree_at`` rather
+        # than element by element (:func:`~stickslip_jax.identify.parameters.set_quantity`).
         coef = jnp.reshape(jnp.asarray(self.periodic), (-1, 2))
         lead = (1,) * jnp.ndim(p)  # harmonics on a last axis of their own
         k = jnp.arange(1, coef.shape[0] + 1, dtype=float).reshape(lead + (-1,))
@@ -679,9 +680,9 @@ class SensorOutput(AbstractOutputMap):
     def __call__(self, t, q):
         p = delayed(t, q, self.delay)
         out = p + self.drift_at(t)
-        harmonics = (len(self.periodic) if isinstance(self.periodic, tuple)
-                     else self.periodic.size)
-        if harmonics:  # none: the sum of before, to the last bit
+        coefficients = (len(self.periodic) if isinstance(self.periodic, tuple)
+                        else self.periodic.size)  # (one array: periodic_error)
+        if coefficients:  # none: the sum of before, to the last bit
             out = out + self.periodic_error(p)
         return out
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from ...identify.parameters import ParameterSpec
 from ...model.actuator import Actuator
-from ...model.extensions import HENE_FRINGE_M, SensorOutput
+from ...model.extensions import HENE_FRINGE_M
 from .base import CatalogueEntry, Probe
 from .slots import carry_output_map, with_sensor
 
@@ -57,17 +57,17 @@ def with_periodic(act: Actuator, harmonics: int = HARMONICS) -> Actuator:
     harmonics (the fitted ones kept, new ones at 0), its other quantities as they
     were."""
     act = with_sensor(act)
-    sensor = act.output_map
-    have = tuple(sensor.periodic)
+    have = act.output_map.periodic
     if len(have) >= 2 * harmonics:
         return act
-    grown = have + (0.0,) * (2 * harmonics - len(have))
-    return _with_coefficients(act, sensor, grown)
+    return _with_coefficients(act, have + (0.0,) * (2 * harmonics - len(have)))
 
 
-def _with_coefficients(act: Actuator, sensor: SensorOutput, coefficients) -> Actuator:
+def _with_coefficients(act: Actuator, coefficients) -> Actuator:
+    """``act`` (its output map a :class:`SensorOutput`) with the periodic error's
+    ``coefficients``, its other quantities as they were."""
     return eqx.tree_at(lambda a: a.output_map, act,
-                       dataclasses.replace(sensor, periodic=tuple(coefficients)))
+                       dataclasses.replace(act.output_map, periodic=tuple(coefficients)))
 
 
 def _coefficient(index: int):
@@ -109,8 +109,7 @@ class SensorPeriodicEntry(CatalogueEntry):
     def attach(self, act, strength, probe):
         start = [0.0] * (2 * HARMONICS)
         start[probe.setting["index"]] = strength
-        act = with_sensor(act)
-        new = _with_coefficients(act, act.output_map, start)
+        new = _with_coefficients(with_sensor(act), start)
         return new, _specs(len(start), probe.strength_scale(strength))
 
     def refined_forms(self, act, hints):
@@ -176,11 +175,15 @@ def _error(coef: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def _max_slope(coef: np.ndarray) -> float:
-    """The error's largest slope [-] over a fringe (on a fine grid)."""
+    """The error's largest slope [-] over a fringe (its derivative, on a grid of 2048
+    points per fringe)."""
     if not coef.size:
         return 0.0
-    p = np.linspace(0.0, HENE_FRINGE_M, 2049)
-    return float(np.max(np.abs(np.gradient(_error(coef, p), p))))
+    k = np.arange(1, len(coef) + 1)
+    phase = 2.0 * math.pi * np.linspace(0.0, HENE_FRINGE_M, 2049)[:, None] * k / HENE_FRINGE_M
+    rate = 2.0 * math.pi * k / HENE_FRINGE_M
+    return float(np.max(np.abs(np.sum(rate * (coef[:, 1] * np.cos(phase)
+                                               - coef[:, 0] * np.sin(phase)), axis=1))))
 
 
 __all__ = ["HARMONICS", "MAX_HARMONICS", "SensorPeriodicEntry", "coefficient_name",
