@@ -25,11 +25,17 @@ import importlib.util
 import os
 from pathlib import Path
 
+from .program_store import use_program_store
+
 CACHE_ENV = "STICKSLIP_CACHE_DIR"
 """The environment variable naming the cache's folder; ``off`` disables the cache."""
 
 DEFAULT_CACHE_DIR = Path.home() / ".cache" / "stickslip_jax"
 """The cache's folder when :data:`CACHE_ENV` is unset."""
+
+PROGRAMS_SUBDIR = "programs"
+"""The folder inside the cache that keeps traced programs (:mod:`.program_store`): the
+compilation cache answers only after a program is traced and lowered; these skip that."""
 
 CACHE_MAX_BYTES = 2 * 1024**3
 """The cache's size limit, bytes (2 GiB). The programs are small (465 entries from many
@@ -48,7 +54,8 @@ def cache_dir_from_env(default: Path | None = DEFAULT_CACHE_DIR) -> Path | None:
 
 def use_compilation_cache(path: Path | None = DEFAULT_CACHE_DIR) -> bool:
     """Keep JAX's compiled programs in ``path`` (default :data:`DEFAULT_CACHE_DIR`, the
-    command line's; created if missing; None: do nothing),
+    command line's; created if missing; None: do nothing), and the traced programs of
+    :mod:`.program_store` in its subfolder :data:`PROGRAMS_SUBDIR`. JAX keeps
     every program however short its compile (identify compiles ~70 of 0.05 to 0.5 s:
     its Levenberg-Marquardt steps, single operations; about 3 s a second run would
     compile again, issue #28), locked and bounded by :data:`CACHE_MAX_BYTES`. Call it
@@ -66,4 +73,5 @@ def use_compilation_cache(path: Path | None = DEFAULT_CACHE_DIR) -> bool:
         jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    use_program_store(Path(path) / PROGRAMS_SUBDIR)
     return True

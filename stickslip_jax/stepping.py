@@ -53,6 +53,7 @@ from .drive_path import (
 )
 from .model.actuator import N_CORE, Actuator
 from .model.base import DriveContext
+from .program_store import stored_jit
 from .solvers import RK4, ExplicitRK
 
 DEFAULT_RADIANS_PER_STEP = 0.5
@@ -98,7 +99,7 @@ def _concrete(tree) -> bool:
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
 
 
-@eqx.filter_jit
+@stored_jit
 def _rest_jacobian(actuator: Actuator, drive: DriveContext):
     # Compiled once per model structure: planning runs at every public call.
     y0, memory = actuator.initial_state(0.0, drive)

@@ -40,6 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..program_store import stored_jit
 from ..simulate import rest_carry
 from ..stepping import StepPlan, sample_stepper
 from .dataset import Dataset
@@ -79,12 +80,12 @@ def _row_output(actuator, voltage, n, dt, drive, plan: StepPlan):
     return actuator.output_map(dt * k, q)
 
 
-@eqx.filter_jit
+@stored_jit
 def _row(actuator, voltage, n, dt, drive, plan):
     return _row_output(actuator, voltage, n, dt, drive, plan)
 
 
-@eqx.filter_jit
+@stored_jit
 def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
     """``(q (T,), dq (T, W))``: the output and its derivatives along the W tangents
     (leading axis of every leaf of ``tangents``) of the ``perturbed`` leaves."""

@@ -1,0 +1,142 @@
+"""Traced programs kept on disk (stickslip_jax.program_store): a later process reads the
+program instead of tracing it, and computes the same numbers to the last bit."""
+
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import stickslip_jax as ss
+from stickslip_jax import program_store
+from stickslip_jax.identify import sensitivities
+from stickslip_jax.identify.dataset import Dataset
+from stickslip_jax.identify.residuals import dataset_plan
+from stickslip_jax.program_store import stored_jit, use_program_store
+from stickslip_jax.synthetic import paper_protocol, simulate_set
+
+TRUTH = Path(__file__).resolve().parent.parent / "fixtures" / "identification" / "truth.json"
+
+
+@pytest.fixture
+def store(tmp_path):
+    before = program_store.program_store_dir()
+    assert use_program_store(tmp_path / "programs")
+    yield tmp_path / "programs"
+    use_program_store(before)
+
+
+TRACES = []
+
+
+def scaled_sum(x, scale, power: int):
+    TRACES.append(power)  # runs only while tracing
+    return scale * jnp.sum(x**power), x * scale
+
+
+def fresh():
+    """The function as a new process sees it: nothing in memory."""
+    return stored_jit(scaled_sum)
+
+
+def test_a_second_process_reads_the_program_and_gets_the_same_bits(store):
+    x = np.linspace(0.1, 2.0, 7)
+    expected = jax.jit(scaled_sum, static_argnums=2)(x, 1.3, 3)
+    TRACES.clear()
+    first = fresh()(x, jnp.asarray(1.3), 3)
+    assert TRACES == [3]  # traced once (exported)
+    assert len(list(store.glob("*.bin"))) == 1
+    again = fresh()(x, jnp.asarray(1.3), 3)
+    assert TRACES == [3]  # read, not traced
+    for a, b, c in zip(jax.tree.leaves(expected), jax.tree.leaves(first),
+                       jax.tree.leaves(again), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(c))
+
+
+def test_static_values_and_shapes_key_the_program(store):
+    f = fresh()
+    f(np.ones(3), 2.0, 2)
+    f(np.ones(3), 2.0, 3)  # another static value
+    f(np.ones(4), 2.0, 2)  # another shape
+    f(np.ones(3, dtype=np.float32), 2.0, 2)  # another dtype
+    assert len(list(store.glob("*.bin"))) == 4
+    assert float(f(np.ones(3), 2.0, 3)[0]) == 6.0
+
+
+def scaled_by(x, scale):
+    return x * scale.k if hasattr(scale, "k") else x * scale()
+
+
+def test_arguments_that_cannot_be_keyed_across_processes_are_traced_as_before(store):
+    class OwnScale:  # a type outside the package: it may change without its source
+        k = 3.0
+
+    f = stored_jit(scaled_by)
+    assert float(f(jnp.asarray(2.0), OwnScale())) == 6.0
+    assert float(f(jnp.asarray(2.0), lambda: 4.0)) == 8.0  # its text names an address
+    assert list(store.glob("*.bin")) == []
+
+
+def test_a_damaged_program_is_traced_again_and_replaced(store):
+    fresh()(np.ones(3), 2.0, 2)
+    (path,) = store.glob("*.bin")
+    path.write_bytes(b"not a program")
+    TRACES.clear()
+    out = fresh()(np.ones(3), 2.0, 2)
+    assert float(out[0]) == 6.0 and TRACES == [2]
+    assert path.stat().st_size > 100
+
+
+def test_inside_a_transformation_it_is_the_plain_program(store):
+    f = fresh()
+    grad = jax.grad(lambda s: f(np.arange(3.0), s, 2)[0])(1.5)
+    assert float(grad) == 5.0  # d/ds s·(0 + 1 + 4)
+    assert list(store.glob("*.bin")) == []
+
+
+def test_the_oldest_programs_go_past_the_size_limit(tmp_path):
+    import os
+
+    for i in range(5):
+        p = tmp_path / f"{i}.bin"
+        p.write_bytes(b"x" * 1000)
+        os.utime(p, (i, i))
+    program_store._evict(tmp_path, limit=3000)
+    assert sorted(p.name for p in tmp_path.glob("*.bin")) == ["3.bin", "4.bin"]
+
+
+def test_the_simulators_programs_are_the_traced_ones_to_the_bit(store):
+    """A recording's trace and its derivatives along two tangents through the stored
+    program equal equinox.filter_jit's to the last bit, compiled in this process and
+    read back from the store as another process would."""
+    base = ss.load_params(TRUTH)
+    specs = paper_protocol(periods=1, amplitudes=(60.0,), frequencies=(500.0,),
+                           step_duration_s=0.005, sine_periods=1)
+    data = Dataset.from_recordings(simulate_set(base, specs[:2], noise_m=1e-9, seed=1))
+    plan = dataset_plan(base, data)
+    mask = sensitivities.perturbed_mask(base, ["Mp", "Kp", "rho0"])
+    programs = sensitivities.RecordingPrograms(data, base, mask, threads=1)
+    tangents = jax.tree.map(lambda x: np.stack([np.ones(np.shape(x)), 2 * np.ones(np.shape(x))]),
+                            eqx.filter(base, mask))
+    stored = programs.sensitivities(base, tangents, plan)
+    kept = sorted(store.glob("*.bin"))  # the planning's and the recordings' programs
+    assert kept
+    use_program_store(None)
+    traced = programs.sensitivities(base, tangents, plan)
+    use_program_store(store)
+    for a, b in zip(stored, traced, strict=True):
+        np.testing.assert_array_equal(a, b)
+    # Read from the store: a new wrapper of the same function has nothing in memory.
+    perturbed, fixed = eqx.partition(base, mask)
+    perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
+    w = sensitivities.tangents_per_call(2, programs.width)  # as sensitivities() pads
+    share = jax.tree.map(lambda x: np.concatenate([x, np.zeros((w - 2,) + x.shape[1:])]),
+                         tangents)
+    again = stored_jit(sensitivities._row_with_tangents.__wrapped__)(
+        perturbed, fixed, share, *programs._rows[0], plan)
+    np.testing.assert_array_equal(np.asarray(again[0]), traced[0][0])
+    np.testing.assert_array_equal(np.asarray(again[1])[:, :2], traced[1][0])
+    assert sorted(store.glob("*.bin")) == kept  # read, not made again
