@@ -14,7 +14,8 @@ same program key deserializes it (milliseconds) instead of tracing it; it then c
 it, or reads the executable from the compilation cache.
 
 The key is everything the trace depends on: the function, the source of this package
-(:func:`source_digest`; a changed line anywhere makes new keys), the JAX version, the
+(:func:`source_digest`; a changed line anywhere makes new keys, and a process whose
+source was edited after it started stores nothing more), the JAX version, the
 backend and the configuration options read while tracing, the pytree structure of the
 arguments with their static (non-array) values, and the shape, dtype and weak type of
 every array. Arguments that cannot be keyed across processes are traced as before: a
@@ -82,10 +83,9 @@ def program_store_dir() -> Path | None:
     return _store["dir"]
 
 
-@functools.cache
-def source_digest() -> str:
-    """SHA-256 of this package's Python source (every ``.py`` file under it, by
-    relative path and content)."""
+def _digest() -> str:
+    """SHA-256 of this package's Python source as it is on disk now (every ``.py`` file
+    under it, by relative path and content; about 4 ms)."""
     root = Path(__file__).resolve().parent
     h = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
@@ -94,6 +94,22 @@ def source_digest() -> str:
         h.update(path.read_bytes())
         h.update(b"\0")
     return h.hexdigest()
+
+
+_LOADED_DIGEST = _digest()
+"""The source this process imported (read with the package's first import)."""
+
+
+def source_digest() -> str:
+    """SHA-256 of the package's source this process runs: the digest taken at import."""
+    return _LOADED_DIGEST
+
+
+def source_unchanged() -> bool:
+    """Whether the source on disk is still the one this process imported. A program
+    traced after an edit (a long run, a notebook kept open) is the old code's: stored
+    under the new source's key it would be read by processes running the new code."""
+    return _digest() == _LOADED_DIGEST
 
 
 def _trace_settings() -> str:
@@ -149,10 +165,13 @@ def _node_types(treedef) -> list[str]:
 
 def _disk_key(name: str, source: str, treedef, static_def, static_leaves, avals) -> str | None:
     """The program's key on disk (hex), None when the arguments cannot be keyed across
-    processes: a type from outside :data:`KNOWN_MODULES`, or a static value whose text
-    names a memory address."""
+    processes: a type from outside :data:`KNOWN_MODULES`, a static value whose text
+    names a memory address, or a source edited since this process imported it
+    (:func:`source_unchanged`)."""
     types = [_node_types(td) for td in (treedef, static_def)]
     if None in types or not all(_known(type(x)) for x in static_leaves):
+        return None
+    if not source_unchanged():
         return None
     text = "\n".join((FORMAT, name, source, source_digest(), _trace_settings(), str(treedef),
                       str(static_def), repr(types), repr(static_leaves), repr(avals)))

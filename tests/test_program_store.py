@@ -80,6 +80,13 @@ def test_arguments_that_cannot_be_keyed_across_processes_are_traced_as_before(st
     assert list(store.glob("*.bin")) == []
 
 
+def test_a_process_whose_source_was_edited_stores_nothing(store, monkeypatch):
+    monkeypatch.setattr(program_store, "_digest", lambda: "edited since the import")
+    out = fresh()(np.ones(3), 2.0, 2)
+    assert float(out[0]) == 6.0
+    assert list(store.glob("*.bin")) == []
+
+
 def test_a_damaged_program_is_traced_again_and_replaced(store):
     fresh()(np.ones(3), 2.0, 2)
     (path,) = store.glob("*.bin")
