@@ -39,13 +39,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .model.actuator import Actuator
 from .model.base import DriveContext
+from .program_store import stored_jit
 
 __all__ = [
     "SpectrumConsistency",
@@ -136,7 +136,7 @@ def _contact_damping(friction, drive: DriveContext):
     return slope
 
 
-@eqx.filter_jit
+@stored_jit
 def _contact(friction, drive: DriveContext):
     # One compiled program: operation by operation, the law's functions each compiled
     # their own (0.8 s on the first call, issue #28).

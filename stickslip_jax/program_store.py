@@ -25,8 +25,11 @@ value whose text names a memory address.
 
 The program run is the one tracing would make (the same StableHLO): results are
 identical to the last bit (checked in tests/test_program_store.py), only the time
-changes. Calls with tracers (the function used inside another transformation) go
-through ``equinox.filter_jit`` unchanged; so does everything while no store is set.
+changes. Calls with tracers (the function used inside another transformation) or
+with arrays sharded over several devices go through ``equinox.filter_jit`` unchanged;
+so does everything while no store is set. Stored: the per-recording programs of the
+identification and the diagnosis, the planning's rest Jacobian, the single and batched
+simulations, the contact's linearisation and the diagnosis's batched outputs.
 """
 
 from __future__ import annotations
@@ -249,8 +252,9 @@ def stored_jit(fn: Callable) -> Callable:
             return jitted(*args)
         dynamic, static = eqx.partition(args, eqx.is_array)
         leaves, treedef = jax.tree.flatten(dynamic)
-        if any(isinstance(x, jax.core.Tracer) for x in leaves):
-            return jitted(*args)
+        if any(isinstance(x, jax.core.Tracer) for x in leaves) or any(
+                isinstance(x, jax.Array) and len(x.sharding.device_set) > 1 for x in leaves):
+            return jitted(*args)  # inside a transformation, or sharded over devices
         static_leaves, static_def = jax.tree.flatten(static)
         avals = tuple(_aval(x) for x in leaves)
         try:

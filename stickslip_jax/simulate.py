@@ -21,7 +21,6 @@ same steps inside and outside.
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 
 import equinox as eqx
 import jax
@@ -32,6 +31,7 @@ from jaxtyping import Array, Float
 from .adjoint import DEFAULT_ADJOINT, AbstractAdjoint
 from .model.actuator import Actuator
 from .model.base import DriveContext
+from .program_store import stored_jit
 from .solvers import ExplicitRK
 from .stepping import (
     DEFAULT_STEPPING,
@@ -138,7 +138,7 @@ def _checked(voltage, drive) -> tuple[jax.Array, DriveContext]:
     return voltage, DriveContext.make() if drive is None else drive
 
 
-@partial(eqx.filter_jit)
+@stored_jit
 def _simulate(actuator, voltage, dt, drive, plan, adjoint=DEFAULT_ADJOINT):
     # Everything differentiable is one explicit argument of the adjoint's wrapper
     # (no closed-over tracers), so its derivative rule sees which inputs are perturbed.
@@ -234,7 +234,7 @@ class Trajectory(eqx.Module):
     y: Float[Array, "T N"]
 
 
-@partial(eqx.filter_jit)
+@stored_jit
 def _trajectory(actuator, voltage, dt, drive, plan):
     ys, q = _scan(actuator, voltage, dt, drive, plan, keep_states=True)
     t = dt * jnp.arange(voltage.shape[0])
@@ -300,7 +300,7 @@ def over_rows(fn, rows, batching: str):
     return jax.lax.map(lambda row: fn(*row), rows)
 
 
-@partial(eqx.filter_jit)
+@stored_jit
 def _simulate_batch(actuator, voltages, dts, drives, plan, adjoint, batching):
     return over_rows(lambda v, dt, d: _simulate(actuator, v, dt, d, plan, adjoint),
                      (voltages, dts, drives), batching)

@@ -20,6 +20,7 @@ from ..identify.solve import ColumnSplitJacobian, LMSettings, solve_least_square
 from ..identify.step_names import dynamics_names, friction_names, without_absent_directions
 from ..identify.steps import JOINT_GN_TOL
 from ..model.actuator import Actuator
+from ..program_store import stored_jit
 from ..significance import Significance
 from ..stepping import StepPlan
 from .budget import UNIT, Budget, evaluation_work, fit_work, plan_factor, solve_work
@@ -168,7 +169,7 @@ class FitProgram:
         return value
 
 
-@eqx.filter_jit
+@stored_jit
 def _simulated(res: WhitenedResiduals):
     """Simulated outputs (B, T) [m] at ``res``'s actuator, every recording in one
     batched program (accelerators)."""
