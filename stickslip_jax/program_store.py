@@ -116,13 +116,15 @@ def source_unchanged() -> bool:
 
 
 def _trace_settings() -> str:
-    """What else a trace reads: versions, backend and the configuration options that
-    change the program."""
+    """What else a trace reads: the versions of what the stored functions call (JAX,
+    jaxlib, equinox, numpy), the backend and the configuration options that change the
+    program."""
     import jaxlib
 
     cfg = jax.config
     return "|".join(str(v) for v in (
-        jax.__version__, jaxlib.__version__, jax.default_backend(),
+        jax.__version__, jaxlib.__version__, eqx.__version__, np.__version__,
+        jax.default_backend(),
         cfg.jax_enable_x64, cfg.jax_default_matmul_precision,
         cfg.jax_numpy_dtype_promotion, cfg.jax_numpy_rank_promotion,
         cfg.jax_default_prng_impl))

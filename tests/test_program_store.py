@@ -87,6 +87,17 @@ def test_a_process_whose_source_was_edited_stores_nothing(store, monkeypatch):
     assert list(store.glob("*.bin")) == []
 
 
+def test_threads_asking_for_one_new_program_trace_it_once(store):
+    from concurrent.futures import ThreadPoolExecutor
+
+    f = fresh()
+    TRACES.clear()
+    with ThreadPoolExecutor(4) as pool:
+        outs = list(pool.map(lambda _: f(np.arange(4.0), 0.5, 2), range(8)))
+    assert TRACES == [2] and len(list(store.glob("*.bin"))) == 1
+    assert all(float(o[0]) == 7.0 for o in outs)  # 0.5·(0 + 1 + 4 + 9)
+
+
 def test_a_damaged_program_is_traced_again_and_replaced(store):
     fresh()(np.ones(3), 2.0, 2)
     (path,) = store.glob("*.bin")
@@ -147,3 +158,34 @@ def test_the_simulators_programs_are_the_traced_ones_to_the_bit(store):
     np.testing.assert_array_equal(np.asarray(again[0]), traced[0][0])
     np.testing.assert_array_equal(np.asarray(again[1])[:, :2], traced[1][0])
     assert sorted(store.glob("*.bin")) == kept  # read, not made again
+
+
+_SIMULATE = """
+import sys, jax
+from pathlib import Path
+jax.config.update("jax_enable_x64", True)
+import numpy as np
+import stickslip_jax as ss
+print(ss.use_compilation_cache(Path(sys.argv[1])))
+u = 40.0 * np.sin(2 * np.pi * 500.0 * np.arange(200) / 25_000.0)
+q = ss.simulate(ss.load_params(sys.argv[2]), u, dt=1 / 25_000.0)
+print(np.asarray(q).tobytes().hex())
+"""
+
+
+def test_a_second_process_simulates_from_the_stored_program(tmp_path):
+    """Two fresh processes sharing a cache folder: the first stores the simulation's
+    program, the second reads it (adds none) and computes the same bits."""
+    import subprocess
+    import sys
+
+    runs = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", _SIMULATE, str(tmp_path), str(TRUTH)],
+                             capture_output=True, text=True, check=True)
+        runs.append(out.stdout.split())
+        if len(runs) == 1:
+            stored = sorted((tmp_path / "programs").glob("*.bin"))
+            assert stored
+    assert runs[0][0] == "True" and runs[0][1] == runs[1][1]
+    assert sorted((tmp_path / "programs").glob("*.bin")) == stored
