@@ -39,7 +39,6 @@ import hashlib
 import inspect
 import os
 import re
-import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -47,6 +46,8 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import numpy as np
+
+from .files import atomic_write_bytes
 
 STORE_MAX_BYTES = 512 * 1024**2
 """The store's size limit, bytes (512 MiB): past it the least recently used programs
@@ -151,7 +152,7 @@ def _known(t: type) -> bool:
     return module.split(".")[0] in KNOWN_MODULES
 
 
-def _node_types(treedef) -> list[str]:
+def _node_types(treedef) -> list[str] | None:
     """The qualified type of every node of ``treedef``, None where one is not
     :func:`_known`."""
     out = []
@@ -202,19 +203,12 @@ def _read(path: Path):
 
 
 def _write(path: Path, exported) -> None:
-    """Write atomically (a reader sees the whole program or none); a store that cannot
-    be written is skipped (the program still runs)."""
+    """Write atomically (:func:`~stickslip_jax.files.atomic_write_bytes`: a reader sees
+    the whole program or none); a store that cannot be written is skipped (the program
+    still runs)."""
     try:
-        blob = exported.serialize()
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".part")
+        atomic_write_bytes(path, exported.serialize())
     except Exception:  # noqa: BLE001 - e.g. a full or read-only disk
-        return
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(blob)
-        os.replace(tmp, path)
-    except OSError:
-        Path(tmp).unlink(missing_ok=True)
         return
     _evict(path.parent)
 
