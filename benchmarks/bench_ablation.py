@@ -56,6 +56,8 @@ from stickslip_jax.diagnose.rules import (  # noqa: E402
 from stickslip_jax.diagnose.sizing import chosen_for_sizing  # noqa: E402
 
 UNSIZED = {CandidateStatus.SCORED.value, CandidateStatus.NOT_SIZED.value}
+DEVELOPMENT_SPLITS = ("dev", "dev2")
+"""The splits this reads (:mod:`stickslip_jax.testing.random_sets`); never a test split."""
 NOT_REPLAYED = ("significance_z", "reidentify_polish_gain", "learned_t_min")
 TOP = 3  # diagnose()'s default refits per round
 SEEDED = {c.name for c in CATALOGUE if c.seeds(ss.lu2015_slc1720())}
@@ -164,11 +166,22 @@ def pass_table(rows: list[dict]) -> list[dict]:
     return table
 
 
+def _without(name: str):
+    """The default configuration without the pass ``name`` (rows made when an opt-in
+    pass was a default: the default configuration itself)."""
+    from stickslip_jax.diagnose import DiagnoseConfig  # noqa: PLC0415
+
+    config = DiagnoseConfig()
+    return config.without(name) if name in config.record()["passes"] else config
+
+
 def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
-          fields: list[str], out: Path | None, part: tuple[int, int]) -> list[dict]:
+          fields: list[str], out: Path | None, part: tuple[int, int],
+          split: str = "dev") -> list[dict]:
     """Diagnose again each pass's decisive and budget-bound sets without it, and each
     set whose gates flip under a threshold of ``fields`` moved; ``part`` ``(k, n)``:
-    the k-th of n interleaved shares of the runs (parallel processes). Appended to
+    the k-th of n interleaved shares of the runs (parallel processes); ``split`` the
+    development split the rows are of (:data:`DEVELOPMENT_SPLITS`). Appended to
     ``out`` as each ends; runs already there are skipped (resume)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_diagnose_split import run_one  # noqa: PLC0415 (heavy; only here)
@@ -179,7 +192,7 @@ def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
     # Not the first refits: without them the fallback refits every sized entry, which
     # tests the fallback, not whether the first refits earn their place (they are the
     # core: every name on the split came from one).
-    runs = [(f"without {p['pass']}", name, DiagnoseConfig().without(p["pass"]))
+    runs = [(f"without {p['pass']}", name, _without(p["pass"]))
             for p in passes if p["pass"] != "first"
             for name in p["decisive_on"] + p["budget_bound_on"]]
     for t in thresholds:
@@ -198,7 +211,8 @@ def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
             continue
         row = index[name]
         print(f"== {name}, {change}", flush=True)
-        again = run_one(rs.draw_set(rs.DEV_SEED, row["index"]), False, config)
+        seed, design = rs.SPLITS[split]
+        again = run_one(rs.draw_set(seed, row["index"], design), False, config)
         done.append({"change": change, "set": name, "hidden": row["hidden"],
                      "named_with": row["named"], "verdict_with": row["verdict"],
                      "named_changed": again["named"], "verdict_changed": again["verdict"],
@@ -221,15 +235,21 @@ def main() -> None:
     ap.add_argument("--part", default="0/1", metavar="K/N",
                     help="--rerun's k-th of n interleaved shares (parallel processes)")
     args = ap.parse_args()
-    rows = []
+    rows, splits = [], set()
     for path in args.json:
         data = json.loads(path.read_text())
-        if data.get("split") != "dev" or data.get("without_passes"):
-            sys.exit(f"{path}: rows of the development split with every pass, please")
+        if data.get("split") not in DEVELOPMENT_SPLITS or data.get("without_passes"):
+            sys.exit(f"{path}: rows of a development split ({', '.join(DEVELOPMENT_SPLITS)}) "
+                     f"with every pass, please")
+        splits.add(data["split"])
         rows += [r for r in data["rows"] if r.get("candidates_by_round")]
+    if len(splits) > 1:
+        sys.exit(f"rows of one split at a time, please (got {', '.join(sorted(splits))}): "
+                 f"their sets share names")
+    split = splits.pop()
     passes, thresholds = pass_table(rows), threshold_table(rows)
-    print(f"{len(rows)} development sets\n\n| pass | refitted on | decisive on | "
-          f"budget-bound on |\n|---|---|---|---|")
+    print(f"{len(rows)} sets of the development split {split}\n\n| pass | refitted on | "
+          f"decisive on | budget-bound on |\n|---|---|---|---|")
     for p in passes:
         print(f"| {p['pass']} | {len(p['refitted_on'])} | "
               f"{', '.join(p['decisive_on']) or '-'} | {', '.join(p['budget_bound_on']) or '-'} |")
@@ -243,7 +263,7 @@ def main() -> None:
     k, n = (int(x) for x in args.part.split("/"))
     if args.rerun:
         reruns = rerun(rows, passes, thresholds, [f for f in args.fields.split(",") if f],
-                       args.reruns_json, (k, n))
+                       args.reruns_json, (k, n), split)
     elif args.reruns_json and args.reruns_json.exists():  # earlier reruns, reported
         reruns = json.loads(args.reruns_json.read_text())["reruns"]
     else:
@@ -252,7 +272,8 @@ def main() -> None:
         print(f"{r['set']}, {r['change']}: {r['named_with'] or r['verdict_with']} -> "
               f"{r['named_changed'] or r['verdict_changed']}")
     if args.out:
-        args.out.write_text(json.dumps({"sets": [r["set"] for r in rows], "passes": passes,
+        args.out.write_text(json.dumps({"split": split, "sets": [r["set"] for r in rows],
+                                        "passes": passes,
                                         "thresholds": thresholds, "reruns": reruns},
                                        indent=1, default=str))
 

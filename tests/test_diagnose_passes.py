@@ -20,6 +20,8 @@ from stickslip_jax.diagnose.passes import (
     FirstRefits,
     RefitPass,
     RefitRound,
+    Reidentify,
+    RivalsInReach,
     SecondLook,
 )
 from stickslip_jax.diagnose.passes import base as passes_base
@@ -84,7 +86,7 @@ def test_a_configuration_without_a_pass_is_its_ablation(monkeypatch):
     ranked = _ranked(("external_load", 1e5, 4e5), ("creep", 1e4, 1e4))
     rnd, calls = _round(ranked, {"creep": 0.9}, monkeypatch)
     passes = DiagnoseConfig().without("fallback").refit_passes
-    assert [p.name for p in passes] == ["first", "rivals", "second_look", "reidentify"]
+    assert [p.name for p in passes] == ["first"]
     _refit_round(rnd, passes)
     assert calls == ["external_load"]
     assert ranked[1].status is CandidateStatus.NOT_REFITTED and not ranked[1].refit_pass
@@ -129,15 +131,22 @@ def test_a_new_pass_is_one_class_handed_to_the_configuration(monkeypatch):
 def test_the_default_passes_are_named_and_an_unknown_one_is_refused():
     assert list(PASS_NAMES) == ["first", "fallback", "rivals", "second_look", "reidentify",
                                 "carry_on"]
-    assert DiagnoseConfig().record()["passes"] == list(PASS_NAMES)[:5]
+    assert DiagnoseConfig().record()["passes"] == ["first", "fallback"]
+    assert isinstance(DiagnoseConfig().refit_passes[1], FallbackRefits)
     added = DiagnoseConfig().with_passes("carry_on")
-    assert added.record()["passes"] == list(PASS_NAMES)
+    assert added.record()["passes"] == ["first", "fallback", "carry_on"]
     assert isinstance(added.refit_passes[-1], CarryOnDeciding)
     with pytest.raises(ValueError, match="no refit pass"):
         added.with_passes("carry_on")  # runs already
-    assert isinstance(DiagnoseConfig().refit_passes[1], FallbackRefits)
+    # Opt-in passes run in their own order whatever the order asked: these three give
+    # the five passes that were the default before the ablation, as they ran.
+    old = DiagnoseConfig().with_passes("reidentify", "rivals", "second_look")
+    assert old.record()["passes"] == list(PASS_NAMES)[:5]
+    assert [type(p) for p in old.refit_passes[2:]] == [RivalsInReach, SecondLook, Reidentify]
     with pytest.raises(ValueError, match="no refit pass"):
-        DiagnoseConfig().without("seconds_look")
+        DiagnoseConfig().without("second_look")  # not run by default
+    with pytest.raises(ValueError, match="no refit pass"):
+        DiagnoseConfig().with_passes("seconds_look")
 
 
 def test_the_deciding_refits_stopped_at_their_cap_are_carried_on(monkeypatch):

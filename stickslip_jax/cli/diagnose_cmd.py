@@ -67,12 +67,18 @@ def diagnose_command(
     without_pass: str = typer.Option(
         "", "--without-pass", metavar="PASS[,PASS]",
         help="An ablation: leave these refit passes out of every round (first, "
-             "fallback, rivals, second_look, reidentify); diagnosis.json records the "
-             "passes run and which pass refitted each entry."),
+             "fallback); diagnosis.json records the passes run and which pass refitted "
+             "each entry."),
     with_pass: str = typer.Option(
         "", "--with-pass", metavar="PASS[,PASS]",
-        help="Add opt-in refit passes after the default ones: carry_on (the top three "
-             "refits by ΔBIC that stopped at their step cap carried on once more)."),
+        help="Add opt-in refit passes after the default ones, in this order whatever "
+             "the order given: rivals (entries the fallback set aside that could still "
+             "tie with an acceptance), second_look (seeded entries when the explaining "
+             "refits stay far from the noise), reidentify (round one of a bent "
+             "identification: the leading entries attached to the identification "
+             "itself), carry_on (the top three refits by ΔBIC that stopped at their step "
+             "cap carried on once more). None of them changed a decision on 70 "
+             "development sets."),
     no_figures: bool = typer.Option(False, "--no-figures", help="Skip the figures."),
     force: bool = typer.Option(False, "--force", help="Replace existing outputs in --out."),
 ) -> None:

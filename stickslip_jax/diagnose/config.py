@@ -97,14 +97,18 @@ class DiagnoseConfig:
         return self.replace(passes=tuple(p for p in passes if p.name not in names))
 
     def with_passes(self, *names: str) -> DiagnoseConfig:
-        """This configuration with the refit passes ``names`` added after its own
-        (opt-in passes; ValueError on an unknown name or one it runs already)."""
+        """This configuration with the refit passes ``names`` added after its own, in
+        the order of :data:`~.passes.PASS_NAMES` whatever the order asked (so
+        ``with_passes("rivals", "second_look", "reidentify")`` runs the five passes
+        that were the default before they became opt-in, as they ran); ValueError on an
+        unknown name or one it runs already."""
         passes = self.refit_passes
         bad = [n for n in names if n not in PASS_NAMES or n in {p.name for p in passes}]
         if bad:
             raise ValueError(f"no refit pass {bad} to add; the passes not run are "
                              f"{[n for n in PASS_NAMES if n not in {p.name for p in passes}]}")
-        return self.replace(passes=passes + tuple(PASS_NAMES[n]() for n in names))
+        added = [n for n in PASS_NAMES if n in names]
+        return self.replace(passes=passes + tuple(PASS_NAMES[n]() for n in added))
 
     def record(self) -> dict:
         """What ``diagnosis.json`` records of it: every field, the passes by name."""

@@ -174,7 +174,8 @@ class Policy:
     refit that still leaves twice the noise variance may mimic another effect. Tuned
     on the concealed sets and their variants (entries that fit their effect left
     0.98-1.3, entries of another form 10-15, a rate lag mimicking a two-pole amplifier
-    6.6); no statistical derivation yet."""
+    6.6); no statistical derivation yet. Read only by the opt-in ``second_look``
+    pass (:data:`~.passes.OPT_IN_PASSES`)."""
 
     reidentify_polish_gain: float = 2.0
     """Ratio of the identified baseline's whitened cost to the polished baseline's at
@@ -183,7 +184,8 @@ class Policy:
     residual, the leading entries are re-identified with the entry free in every
     identification step. Tuned on the concealed sets and their variants (3.0x and
     8.8x with an 8 µs delay, where it named the delay; 1.36x where three
-    re-identifications found nothing); no statistical derivation yet."""
+    re-identifications found nothing); no statistical derivation yet. Read only by the
+    opt-in ``reidentify`` pass (:data:`~.passes.OPT_IN_PASSES`)."""
 
     learned_t_min: float = 4.0
     """``|t|`` (coefficient over its standard error, from the whitened Jacobian at the

@@ -49,13 +49,15 @@ SizingOutcome`, :class:`~.records.RefitOutcome`) on its
    costs more than the round's optimum, from its free sizing's point when that costs
    less (:func:`~.refit.refit_start`). The default passes:
    :class:`~.passes.FirstRefits` (the leader and its competitors, the ``top`` at most;
-   once one would be accepted, only those that could rival it),
+   once one would be accepted, only those that could rival it) and
    :class:`~.passes.FallbackRefits` (when none explains: every other sized entry whose
-   sizings leave room for an acceptance), :class:`~.passes.RivalsInReach` (those the
-   fallback set aside that could still tie with an acceptance),
+   sizings leave room for an acceptance). Opt-in (:data:`~.passes.OPT_IN_PASSES`: they
+   changed no decision on the development splits): :class:`~.passes.RivalsInReach`
+   (those the fallback set aside that could still tie with an acceptance),
    :class:`~.passes.SecondLook` (the seeded entries, when the explaining refits stay
-   far from the noise) and :class:`~.passes.Reidentify` (round one of a bent
-   identification: the leading entries attached to the identification itself).
+   far from the noise), :class:`~.passes.Reidentify` (round one of a bent
+   identification: the leading entries attached to the identification itself) and
+   :class:`~.passes.CarryOnDeciding`.
 6. **Accept** (:func:`_accept`) by the Bayesian information criterion of the whitened
    residual (known noise level): ``ΔBIC = ΔRSS + k·ln N`` (k added parameters, N
    samples). The best entry is accepted when ``ΔBIC <`` :attr:`~.Policy.bic_min`

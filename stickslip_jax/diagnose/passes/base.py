@@ -6,8 +6,8 @@ still waiting get a refit (every baseline parameter freed with the entry's own),
 the round's :class:`RefitRound`, and runs them through :meth:`RefitRound.refit`, which
 records the pass's name on the entry (:attr:`~..results.CandidateResult.refit_pass`).
 A pass is one small class: a new one is a new module and one line in
-:data:`~.DEFAULT_PASSES`; a configuration without it (``DiagnoseConfig(passes=...)``)
-is its ablation.
+:data:`~.DEFAULT_PASSES` (or :data:`~.OPT_IN_PASSES`, run when asked for); a
+configuration without it (``DiagnoseConfig(passes=...)``) is its ablation.
 """
 
 from __future__ import annotations

@@ -24,7 +24,11 @@ class Reidentify(RefitPass):
 
     What it is for: the identification can bend the paper's model to mimic a large
     effect into a valley that a refit from the bent baseline does not leave (an 8 µs
-    sensor delay bent Mp 12x; re-identified, the delay was refitted to the noise)."""
+    sensor delay bent Mp 12x; re-identified, the delay was refitted to the noise; since
+    then the first refits name that delay).
+
+    Opt-in (``--with-pass reidentify``; a default until the ablation on 70
+    development sets, :data:`~.OPT_IN_PASSES`, found it never ran)."""
 
     name = "reidentify"
     reads = ("reidentify_polish_gain",)

@@ -18,7 +18,10 @@ class RivalsInReach(RefitPass):
 
     What it is for: the report names every rival the data cannot tell from the entry it
     accepts; an entry out of reach of an acceptance on its own can still be within the
-    tolerance of the accepted refit's cost."""
+    tolerance of the accepted refit's cost.
+
+    Opt-in (``--with-pass rivals``; a default until the ablation on 70
+    development sets, :data:`~.OPT_IN_PASSES`, found it never ran)."""
 
     name = "rivals"
 

@@ -19,7 +19,11 @@ class SecondLook(RefitPass):
     resonance's frequency, an amplifier's poles), so its score at zero strength and its
     sizing from one seed say little; an entry of another form can then explain most of
     its effect and still leave twice the noise variance (a rate lag mimicking a
-    two-pole amplifier left 6.6)."""
+    two-pole amplifier left 6.6).
+
+    Opt-in (``--with-pass second_look``; a default until the ablation on 70
+    development sets, :data:`~.OPT_IN_PASSES`, found it deciding nothing: it
+    refitted a drive stage on two of them and on one concealed set, never accepted)."""
 
     name = "second_look"
     reads = ("second_look_chi2",)
