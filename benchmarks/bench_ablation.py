@@ -177,11 +177,13 @@ def _without(name: str):
 
 def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
           fields: list[str], out: Path | None, part: tuple[int, int],
-          split: str = "dev") -> list[dict]:
+          split: str = "dev", paired: bool = False) -> list[dict]:
     """Diagnose again each pass's decisive and budget-bound sets without it, and each
     set whose gates flip under a threshold of ``fields`` moved; ``part`` ``(k, n)``:
     the k-th of n interleaved shares of the runs (parallel processes); ``split`` the
-    development split the rows are of (:data:`DEVELOPMENT_SPLITS`). Appended to
+    development split the rows are of (:data:`DEVELOPMENT_SPLITS`); ``paired``: each
+    set rerun with the default configuration too (change ``"default"``), so that the
+    change is judged against this commit, not against the rows' older one. Appended to
     ``out`` as each ends; runs already there are skipped (resume)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_diagnose_split import run_one  # noqa: PLC0415 (heavy; only here)
@@ -202,6 +204,9 @@ def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
             value = t[factor]["value"]
             config = DiagnoseConfig(policy=dataclasses.replace(Policy(), **{t["field"]: value}))
             runs += [(f"{t['field']} = {value:g}", name, config) for name in t[factor]["flips"]]
+    if paired:
+        sets = list(dict.fromkeys(name for _, name, _ in runs))
+        runs = [("default", name, DiagnoseConfig()) for name in sets] + runs
     done = json.loads(out.read_text())["reruns"] if out and out.exists() else []
     have = {(r["change"], r["set"]) for r in done}
     index = {row["set"]: row for row in rows}
@@ -230,6 +235,9 @@ def main() -> None:
                     help="diagnose each pass's decisive and budget-bound sets without it, "
                          "and the sets whose gates flip under --fields moved")
     ap.add_argument("--fields", default="", help="Policy fields whose flips --rerun runs")
+    ap.add_argument("--paired", action="store_true",
+                    help="--rerun each set with the default configuration too, at this "
+                         "commit (the rows may be older)")
     ap.add_argument("--reruns-json", type=Path, default=None,
                     help="where --rerun appends its runs (resumable)")
     ap.add_argument("--part", default="0/1", metavar="K/N",
@@ -263,13 +271,19 @@ def main() -> None:
     k, n = (int(x) for x in args.part.split("/"))
     if args.rerun:
         reruns = rerun(rows, passes, thresholds, [f for f in args.fields.split(",") if f],
-                       args.reruns_json, (k, n), split)
+                       args.reruns_json, (k, n), split, args.paired)
     elif args.reruns_json and args.reruns_json.exists():  # earlier reruns, reported
         reruns = json.loads(args.reruns_json.read_text())["reruns"]
     else:
         reruns = []
+    now = {r["set"]: r for r in reruns if r["change"] == "default"}
     for r in reruns:
-        print(f"{r['set']}, {r['change']}: {r['named_with'] or r['verdict_with']} -> "
+        if r["change"] == "default":
+            continue
+        base = now.get(r["set"])
+        against = (f"{r['named_with'] or r['verdict_with']}" if base is None else
+                   f"{base['named_changed'] or base['verdict_changed']} (default, rerun)")
+        print(f"{r['set']}, {r['change']}: {against} -> "
               f"{r['named_changed'] or r['verdict_changed']}")
     if args.out:
         args.out.write_text(json.dumps({"split": split, "sets": [r["set"] for r in rows],

@@ -201,6 +201,21 @@ def test_display_psd_puts_white_noise_at_the_one_sided_level_either_way():
         assert np.mean(level) == pytest.approx(2 * sigma**2 * dt, rel=0.1)
 
 
+@pytest.mark.parametrize(("n", "seg"), [(1250, 250), (2500, 625), (1001, 333), (999, 400)])
+def test_welch_psd_is_scipys_welch(n, seg):
+    from scipy.signal import welch
+
+    from stickslip_jax.identify.figures import welch_psd
+
+    # A random walk on a trend: the linear detrend and the one-sided doubling both show.
+    x = np.random.default_rng(n).standard_normal(n).cumsum() + 0.01 * np.arange(n)
+    f_ref, p_ref = welch(x, fs=1 / 2e-5, window="hann", nperseg=seg, noverlap=seg // 2,
+                         detrend="linear")
+    f, p = welch_psd(x, 2e-5, seg)
+    np.testing.assert_allclose(f, f_ref, rtol=0, atol=0)
+    np.testing.assert_allclose(p, p_ref, rtol=1e-12, atol=1e-14 * p_ref.max())
+
+
 # ----------------------------------------------------------------------------- sweep
 def test_sweep_figure_uses_a_symlog_scale_and_marks_scanning(tmp_path):
     from matplotlib.collections import QuadMesh

@@ -42,3 +42,20 @@ def test_trajectory_matches_simulate():
     t, u = ss.sawtooth(10.0, 500.0, duration_s=0.006)
     small = ss.simulate_states(act, u, dt=t[1] - t[0], drive=drive)
     assert np.max(np.abs(np.asarray(small.z))) < float(act.friction.z_ba(drive))
+
+
+def test_the_command_line_starts_without_the_heavy_optional_imports():
+    # scipy.stats (one χ² tail in the diagnosis), scipy.signal (it imports scipy.stats)
+    # and optimistix (the z_ba surface's solver) cost about 0.7 s to import; the
+    # command line must not pay that at start, nor identify's PSD figures.
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np, stickslip_jax.cli.main\n"
+            "from stickslip_jax.identify.figures import display_psd\n"
+            "display_psd(np.sin(np.arange(4000) / 7.0), 4e-5, period_samples=44.0)\n"
+            "print(sorted(m for m in ('scipy.stats', 'scipy.signal', 'optimistix')\n"
+            "             if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr

@@ -24,7 +24,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import stats
 
 from ..identify.report import classify_regime
 from ..identify.residuals import periodogram_psd
@@ -78,6 +77,10 @@ def ljung_box(e: np.ndarray, lags: int = LJUNG_BOX_LAGS) -> tuple[float, float]:
     denom = float(np.dot(x, x)) or 1.0
     rho = np.array([np.dot(x[k:], x[:-k]) / denom for k in range(1, lags + 1)])
     q = n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1)))
+    # Imported here: scipy.stats takes about 0.3 s to import, which every command
+    # (the package imports this module) would otherwise pay.
+    from scipy import stats
+
     return float(q), float(stats.chi2.sf(q, lags))
 
 

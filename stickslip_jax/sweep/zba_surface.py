@@ -23,7 +23,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Float
 
 from ..files import atomic_write_text, check_output_path
@@ -150,6 +149,10 @@ def fit_zba_points(actuator, recordings, *, stepping=None, max_steps: int = 40) 
         diff = (model_output(act, v, dt, d, plan) - q) * m
         diff = diff - m * jnp.sum(diff) / jnp.sum(m)
         return diff / s
+
+    # Imported here: optimistix takes about 0.2 s to import, which every command (the
+    # package imports this module) would otherwise pay.
+    import optimistix as optx
 
     solver = optx.LevenbergMarquardt(rtol=1e-7, atol=1e-9)
 
