@@ -204,12 +204,18 @@ def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
             value = t[factor]["value"]
             config = DiagnoseConfig(policy=dataclasses.replace(Policy(), **{t["field"]: value}))
             runs += [(f"{t['field']} = {value:g}", name, config) for name in t[factor]["flips"]]
+    index = {row["set"]: row for row in rows}
     if paired:
-        sets = list(dict.fromkeys(name for _, name, _ in runs))
-        runs = [("default", name, DiagnoseConfig()) for name in sets] + runs
+        # Each set's default run beside its changes, the quickest sets (by the rows'
+        # wall time) first: interleaved parts then run a pair side by side, and a run
+        # stopped early leaves whole pairs.
+        sets = sorted(dict.fromkeys(name for _, name, _ in runs),
+                      key=lambda name: (index[name]["wall_s"], name))
+        runs = [run for name in sets
+                for run in [("default", name, DiagnoseConfig())]
+                + [r for r in runs if r[1] == name]]
     done = json.loads(out.read_text())["reruns"] if out and out.exists() else []
     have = {(r["change"], r["set"]) for r in done}
-    index = {row["set"]: row for row in rows}
     k, n = part
     for change, name, config in runs[k::n]:
         if (change, name) in have:
