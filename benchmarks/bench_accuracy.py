@@ -24,10 +24,8 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
-import subprocess
 import time
 from pathlib import Path
 
@@ -36,6 +34,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
+from results_record import write_record  # noqa: E402
 
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.model.base import DriveContext  # noqa: E402
@@ -177,14 +176,9 @@ def main():
     worst = max(r["default_nm"] for r in rows)
     print(f"worst default error {worst:.4f} nm (target {TARGET_NM} nm): "
           f"{'PASS' if worst <= TARGET_NM else 'MISS'}")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({
-            "commit": commit, "date": time.strftime("%Y-%m-%d"), "machine": platform.node(),
-            "jax": jax.__version__, "target_nm": TARGET_NM, "worst_default_nm": worst,
-            "rows": rows}, indent=1))
+        write_record(Path(args.json), machine=platform.node(), jax=jax.__version__,
+                     target_nm=TARGET_NM, worst_default_nm=worst, rows=rows)
     if args.figure:
         figure(rows, args.figure)
 

@@ -39,7 +39,6 @@ import ast
 import dataclasses
 import json
 import re
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -60,6 +59,7 @@ ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 # The concealed-set benchmark's diagnose run and protocols, shared.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_diagnose import REDUCED_SETTINGS, protocol, run_set  # noqa: E402
+from results_record import commit_of  # noqa: E402
 
 SEEDS = {name: seed for name, (seed, _) in rs.SPLITS.items()}
 DEV_SPLITS = ("dev", "dev2")
@@ -84,15 +84,7 @@ def outcome(row: dict) -> str:
 def code_version() -> str:
     """The commit the code runs at (``+dirty`` with uncommitted changes), stamped on
     every row: a resumed run may span commits, and the report says which."""
-    here = Path(__file__).resolve().parent.parent
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here,
-                              capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=here, capture_output=True, text=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
+    return commit_of(mark_dirty=True)
 
 
 def run_one(spec: rs.SetSpec, reduced: bool, config: DiagnoseConfig | None = None) -> dict:

@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-from results_record import write_record
+from results_record import commit_of, write_record
 
 ROOT = Path(__file__).resolve().parent.parent
 OPTIONAL = ("scipy.stats", "scipy.signal", "optimistix", "matplotlib")
@@ -72,9 +72,7 @@ def main() -> None:
     for name, path in arms.items():
         slowest, optional = import_profile(path, args.top)
         med = statistics.median(times[name])
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=path,
-                                capture_output=True, text=True).stdout.strip()
-        result["arms"][name] = {"checkout": str(path), "commit": commit, "median_s": med,
+        result["arms"][name] = {"checkout": str(path), "commit": commit_of(path), "median_s": med,
                                 "min_s": min(times[name]), "max_s": max(times[name]),
                                 "optional_imported": optional,
                                 "slowest_imports_s": slowest}
