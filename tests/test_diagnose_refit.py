@@ -45,9 +45,11 @@ def _problem(recs) -> Problem:
     return Problem(data, sigmas, {"Ms": 0.0247}, lambda s: None, Budget(None))
 
 
-def test_two_stages_end_at_the_optimum_of_one_fit_for_less_work(case):
+@pytest.mark.parametrize("trial", [False, True], ids=["damped", "gauss_newton_trial"])
+def test_two_stages_end_at_the_optimum_of_one_fit(case, trial):
     recs, attached, entry_specs = case
     one, two = _problem(recs), _problem(recs)
+    one.gauss_newton_trial = two.gauss_newton_trial = trial
     names = baseline_free(attached, one.data, one.fix) + list(entry_specs)
     assert "pi_weights" in names
     act_one, cost_one, out_one = one.fit(attached, names, entry_specs, label="one",
@@ -65,7 +67,14 @@ def test_two_stages_end_at_the_optimum_of_one_fit_for_less_work(case):
     # The second stage returns the full Jacobian (the leave-one-regime-out check
     # reads it).
     assert out_two.jacobian.shape == out_one.jacobian.shape
-    assert two.budget.spent < one.budget.spent, (two.budget.spent, one.budget.spent)
+    # Work: with damped steps only, the staging is what made the refit cheaper (185k
+    # -> 142k sample-evaluations here: the one fit crept 12 steps). With the
+    # Gauss-Newton trial (the default) the one fit takes 4 steps, 71k, and the two
+    # stages 110k: the staging no longer pays on this case (not yet measured on sets).
+    if trial:
+        assert out_one.iterations <= 6, out_one.iterations
+    else:
+        assert two.budget.spent < one.budget.spent, (two.budget.spent, one.budget.spent)
 
 
 def test_the_estimate_bounds_both_stages(case):

@@ -214,9 +214,12 @@ class Problem:
     simulation it runs is charged to ``budget`` (:mod:`.budget`)."""
 
     def __init__(self, data: Dataset, sigmas: np.ndarray, fix: dict, echo,
-                 budget: Budget | None = None):
+                 budget: Budget | None = None, gauss_newton_trial: bool = True):
         self.data, self.sigmas, self.fix, self.say = data, sigmas, fix, echo
         self.budget = budget or Budget(None)
+        self.gauss_newton_trial = gauss_newton_trial
+        """Whether the fits try the full Gauss-Newton point after a step the linear
+        model predicted (:class:`~stickslip_jax.identify.solve.LMSettings`)."""
         self.n_obs = int(data.mask.sum())
         self.samples = int(data.mask.size)  # the padded grid the simulator steps
         self.counts = np.asarray(data.mask.sum(axis=1), dtype=float)
@@ -362,7 +365,8 @@ class Problem:
         res = program.residuals if basis is None else ProjectedResiduals(
             program.residuals, jnp.asarray(basis))
         settings = LMSettings(max_steps=max_steps, gn_tol=JOINT_GN_TOL,
-                              initial_damping=initial_damping)
+                              initial_damping=initial_damping,
+                              gauss_newton_trial=self.gauss_newton_trial)
         out = solve_least_squares(res, jnp.asarray(theta0, dtype=float), settings,
                                   label=label, echo=None, jacobian=jacobian, value=value)
         self.budget.charge(solve_work(self.samples, np.size(out.theta), out,

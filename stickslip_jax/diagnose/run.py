@@ -512,7 +512,8 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         notes.append(f"Ms held at {fix['Ms']:g} kg (position data fix only ratios of the "
                      f"masses, dampings and stiffnesses).")
     sigmas = np.array([noise_sigma(r) for r in data.recordings])
-    problem = Problem(data, sigmas, fix, say, budget)
+    problem = Problem(data, sigmas, fix, say, budget,
+                      gauss_newton_trial=config.gauss_newton_trial)
     n_obs = problem.n_obs
     say(f"[budget] {_work_estimate(problem, init, work_budget)}")
 

@@ -175,6 +175,17 @@ class LevenbergMarquardtSteps:
     point also gets optimistix's Cauchy test (:attr:`terminate`): the change of y and
     of the residual since the last accepted point both below ``atol + rtol·|value|`` in
     RMS over their entries (never with ``rtol = atol = 0``).
+
+    ``gauss_newton_trial``: after a step the linear model predicted to within
+    ``HIGH_CUTOFF``, the next point tried is the full Gauss-Newton step's, ``y −
+    J⁺r`` (directions with singular values below :data:`GAUSS_NEWTON_RCOND` of the
+    largest left out), not the damped one: where the model holds, that point is the
+    minimiser of the model, which a damping lowered 3.5x per step reaches only once λ
+    is below JᵀJ's smallest eigenvalue (on an ill-conditioned linear fit, a drift's
+    settling terms, several dozen steps). A rejected trial leaves λ as it was and the
+    damped step is tried next (:func:`solve_least_squares` counts the two as one step);
+    an accepted one updates λ as any step does. After a rejection the next trial waits
+    until λ has fallen below where it was: the model failed at that reach.
     """
 
     HIGH_CUTOFF = 0.99
@@ -196,11 +207,16 @@ class LevenbergMarquardtSteps:
     A rejected step raises λ 4x in both (``LOW_CONSTANT``)."""
 
     def __init__(self, y0, *, step_size: float = 1.0, rtol: float = 0.0, atol: float = 0.0,
-                 damping_update: str = "classical"):
+                 damping_update: str = "classical", gauss_newton_trial: bool = False):
         if damping_update not in self.DAMPING_UPDATES:
             raise ValueError(f"damping_update must be one of {self.DAMPING_UPDATES}, "
                              f"got {damping_update!r}")
         self.damping_update = damping_update
+        self.gauss_newton_trial = bool(gauss_newton_trial)
+        self.trying_gauss_newton = False
+        """Whether :attr:`y_eval` is a full Gauss-Newton point (``gauss_newton_trial``)."""
+        self.trial_failed_at = 0.0
+        """The step size (1/λ) when a trial was last rejected (0: none was)."""
         self.gain_ratio = np.nan
         """ρ of the point last decided: the cost's fall over the fall the linear model
         predicted (nan for the start)."""
@@ -245,7 +261,10 @@ class LevenbergMarquardtSteps:
         here; a rejected point needs no Jacobian (``jac`` None)."""
         value = np.asarray(value, dtype=float)
         accept, good = self.decide(value) if decision is None else decision
-        if not accept:
+        if not accept and self.trying_gauss_newton:
+            # The undamped trial failed: λ's own step is untried, try it next.
+            self.trial_failed_at = self.step_size
+        elif not accept:
             self.step_size *= self.LOW_CONSTANT
         elif self.damping_update == "classical":
             self.step_size *= self.HIGH_CONSTANT if good else 1.0
@@ -258,8 +277,14 @@ class LevenbergMarquardtSteps:
             self.accepted += 1
         else:
             self.terminate = False
-        self.y_eval = self.y + (-self._damped_step())
+        self.trying_gauss_newton = bool(self.gauss_newton_trial and accept and good
+                                        and self.step_size > self.trial_failed_at)
+        step = self._gauss_newton_step() if self.trying_gauss_newton else self._damped_step()
+        self.y_eval = self.y + (-step)
         return accept
+
+    def _gauss_newton_step(self) -> np.ndarray:
+        return np.linalg.lstsq(self.jac, self.residual, rcond=GAUSS_NEWTON_RCOND)[0]
 
     def _damped_step(self) -> np.ndarray:
         eps = np.finfo(float).eps
@@ -280,7 +305,12 @@ class LevenbergMarquardtSteps:
         return bool(y_ok and f_ok)
 
 
-def gauss_newton_drop(residual, jac, *, rcond: float = 1e-9) -> float:
+GAUSS_NEWTON_RCOND = 1e-9
+"""Singular values of the Jacobian below this share of the largest are directions the
+data do not determine [-]: the Gauss-Newton step and its test leave them out."""
+
+
+def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND) -> float:
     """What the full Gauss-Newton step from a point lowers the cost ``rᵀr`` by, to
     first order: with residual r (N,) and Jacobian J (N, p), δ = −(JᵀJ)⁺Jᵀr lowers it by
     Δ = gᵀ(JᵀJ)⁺g (g = Jᵀr). Directions whose singular value is below ``rcond`` times
@@ -298,7 +328,7 @@ def gauss_newton_drop(residual, jac, *, rcond: float = 1e-9) -> float:
     return float(np.sum(gv[keep] ** 2 / w[keep]))
 
 
-def gauss_newton_distance(residual, jac, *, rcond: float = 1e-9) -> float:
+def gauss_newton_distance(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND) -> float:
     """Squared length of the full Gauss-Newton step from a point, in standard errors:
     its cost drop (:func:`gauss_newton_drop`) divided by σ̂² = rᵀr/(N − p), the step's
     Mahalanobis length squared under the covariance σ̂²(JᵀJ)⁺. [-]
@@ -336,7 +366,8 @@ class LMSettings:
     ``rtol``, ``atol``; the stationary-cost test ``ftol`` (None: 0.1/N) over ``window``
     accepted steps; the Gauss-Newton point test ``gn_tol`` [SE²] (None: off; set, it
     replaces the other tests); ``initial_damping``; ``scale_by_jacobian``;
-    ``damping_update`` (:attr:`LevenbergMarquardtSteps.DAMPING_UPDATES`)."""
+    ``damping_update`` (:attr:`LevenbergMarquardtSteps.DAMPING_UPDATES`);
+    ``gauss_newton_trial`` (:class:`LevenbergMarquardtSteps`)."""
 
     max_steps: int = 60
     rtol: float = 1e-4
@@ -347,6 +378,7 @@ class LMSettings:
     initial_damping: float = 1.0
     scale_by_jacobian: bool = True
     damping_update: str = "classical"
+    gauss_newton_trial: bool = False
 
     def replace(self, **changes) -> LMSettings:
         """These settings with ``changes`` (field names; TypeError on an unknown one)."""
@@ -423,7 +455,9 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
     too.
 
     ``damping_update``: how an accepted step changes the damping
-    (:attr:`LevenbergMarquardtSteps.DAMPING_UPDATES`).
+    (:attr:`LevenbergMarquardtSteps.DAMPING_UPDATES`). ``gauss_newton_trial``: after a
+    step the linear model predicted well, try the full Gauss-Newton point next
+    (:class:`LevenbergMarquardtSteps`).
 
     ``stop_when``: ``θ ↦ reason``, asked at each accepted point after the start; a
     non-empty reason ends the solve there, not converged, with the reason in
@@ -487,7 +521,8 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
         # Only the point test decides (the Cauchy test never passes at 0).
         rtol = atol = ftol = 0.0
     lm = LevenbergMarquardtSteps(phi0, step_size=1.0 / initial_damping, rtol=rtol, atol=atol,
-                                 damping_update=damping_update)
+                                 damping_update=damping_update,
+                                 gauss_newton_trial=settings.gauss_newton_trial)
     costs: list[float] = []  # cost at each accepted point, the start first
     residual_start = None
     jac_accepted = jac  # the Jacobian (in φ) at the last accepted point
@@ -505,7 +540,8 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
     reference_cost = value_cost(phi0)[0] if value_of is not None else None
     # The first step only takes the start (always accepted); each later one tries the
     # point the one before proposed, and accepts or rejects it.
-    for n in range(max_steps + 1):
+    def take(n: int) -> bool:  # evaluate the point step n tries; accept or reject it
+        nonlocal value, jac, reference_cost
         decision = None
         if n and value_of is not None:  # the point this step tries, its value first
             trial_cost, trial = value_cost(lm.y_eval)
@@ -517,7 +553,16 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
                 value, jac = trial, None
         elif n:  # the point this step tries (the start's was evaluated above)
             value, jac = evaluate(lm.y_eval, (theta0, d))
-        accepted_now = lm.step(value, jac, decision)
+        return lm.step(value, jac, decision)
+
+    for n in range(max_steps + 1):
+        gauss_newton_point = lm.trying_gauss_newton
+        accepted_now = take(n)
+        if gauss_newton_point and not accepted_now:
+            # A rejected Gauss-Newton trial is not one of the steps: the damped point it
+            # stood in for is tried at once, so where every trial fails the fit takes
+            # the damped steps alone, the same path (an evaluation more per trial).
+            accepted_now = take(n)
         if accepted_now:
             jac_accepted, rejected_run = jac, 0
         elif lm.predicted_fall <= np.sum(lm.residual**2) / max(lm.residual.size - phi0.size, 1):
