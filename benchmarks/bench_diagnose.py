@@ -3,6 +3,8 @@
     .venv/bin/python benchmarks/bench_diagnose.py --json out/bench_diagnose.json
     .venv/bin/python benchmarks/bench_diagnose.py --sets set_03,set_09 --from-profile
     .venv/bin/python benchmarks/bench_diagnose.py --variants all --json out/variants.json
+    .venv/bin/python benchmarks/bench_diagnose.py --sets set_06 --from-profile \
+        --config gauss_newton_trial=False --json out/set_06_damped.json   # an ablation
 
 For each folder of fixtures/concealed/ (17 recordings, the identification protocol with
 one hidden effect, see fixtures/concealed/README.md) run :func:`diagnose` and compare
@@ -18,6 +20,8 @@ magnitudes of the effects (a second-order amplifier, a two-mode creep, a 2.2 kHz
 an 8 µs delay, a negative load, an interferometer periodic error of one sine, ...),
 simulated in memory on the same protocol (``--reduced``: the tests' 8-recording
 protocol), to check that the diagnosis is not tuned to the fixtures' generator.
+``--config FIELD=VALUE`` runs it with a :class:`DiagnoseConfig` change (recorded in the
+JSON): an ablation of a switch beside a default run, in one checkout.
 
 Columns: hidden effect, named effect (first accepted; ``unexplained`` when the verdict
 is the unexplained residual; ``-`` when nothing was named), verdict, mean NRMSE before
@@ -29,6 +33,8 @@ rows' ``compilation_cache``).
 """
 
 import argparse
+import ast
+import dataclasses
 import json
 import sys
 import time
@@ -45,7 +51,7 @@ from stickslip_jax.compilation_cache import (  # noqa: E402
     cache_dir_from_env,
     use_compilation_cache,
 )
-from stickslip_jax.diagnose import Verdict, diagnose  # noqa: E402
+from stickslip_jax.diagnose import DiagnoseConfig, Verdict, diagnose  # noqa: E402
 from stickslip_jax.diagnose.report import diagnosis_dict, form_found  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
@@ -148,6 +154,20 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
     }
 
 
+def config_changes(items: list[str]) -> dict:
+    """``FIELD=VALUE`` items as :class:`DiagnoseConfig` changes (values as Python
+    literals); a field it does not have is an error."""
+    fields = {f.name for f in dataclasses.fields(DiagnoseConfig)}
+    changes = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in fields:
+            sys.exit(f"--config {item!r}: give FIELD=VALUE with FIELD one of "
+                     f"{', '.join(sorted(fields))}")
+        changes[name] = ast.literal_eval(value)
+    return changes
+
+
 def write_json(args, rows: list[dict]) -> None:
     """The rows so far to ``--json`` (if given)."""
     if args.json:
@@ -155,6 +175,7 @@ def write_json(args, rows: list[dict]) -> None:
         args.json.write_text(json.dumps({"rows": rows, "from_profile": args.from_profile,
                                          "variants": bool(args.variants),
                                          "reduced": args.reduced,
+                                         **({"config": args.config} if args.config else {}),
                                          "jax": jax.__version__}, indent=1, default=float))
 
 
@@ -171,7 +192,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=9000,
                     help="noise seed of the variants (variant i draws seed + 17 i)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--config", nargs="+", default=[], metavar="FIELD=VALUE",
+                    help="a DiagnoseConfig change, e.g. gauss_newton_trial=False (an "
+                         "ablation beside the default run; the value a Python literal)")
     args = ap.parse_args()
+    config = DiagnoseConfig().replace(**config_changes(args.config))
     answers = json.loads((CONCEALED / "answers.json").read_text())["sets"]
     chosen = [s for s in args.sets.split(",") if s] or sorted(answers)
     if args.variants:
@@ -187,12 +212,12 @@ def main() -> None:
             # The noise draw goes with the variant, whichever others run beside it.
             seed = args.seed + 17 * list(VARIANTS).index(name)
             recs = variant_recordings(name, reduced=args.reduced, seed=seed)
-            row = run_set(name, from_profile=args.from_profile, recs=recs,
+            row = run_set(name, from_profile=args.from_profile, recs=recs, config=config,
                           **{"max_rounds": args.max_rounds, **kw})
             row["hidden"] = f"{VARIANTS[name][0]} ({VARIANTS[name][1]})"
         else:
             row = run_set(CONCEALED / name, from_profile=args.from_profile,
-                          max_rounds=args.max_rounds)
+                          max_rounds=args.max_rounds, config=config)
             row["hidden"] = answers[name]
         rows.append(row)
         write_json(args, rows)  # after every set: a later crash keeps the rows done

@@ -35,7 +35,6 @@ and the confusion matrix.
 """
 
 import argparse
-import ast
 import dataclasses
 import json
 import re
@@ -58,7 +57,7 @@ ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
 # The concealed-set benchmark's diagnose run and protocols, shared.
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_diagnose import REDUCED_SETTINGS, protocol, run_set  # noqa: E402
+from bench_diagnose import REDUCED_SETTINGS, config_changes, protocol, run_set  # noqa: E402
 from results_record import commit_of  # noqa: E402
 
 SEEDS = {name: seed for name, (seed, _) in rs.SPLITS.items()}
@@ -379,20 +378,6 @@ def save(path: Path | None, meta: dict, rows: list[dict]) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps({**meta, "jax": jax.__version__, "rows": rows,
                                     "summary": summary(rows)}, indent=1, default=float))
-
-
-def config_changes(items: list[str]) -> dict:
-    """``FIELD=VALUE`` items as :class:`DiagnoseConfig` changes (values as Python
-    literals); a field it does not have is an error."""
-    fields = {f.name for f in dataclasses.fields(DiagnoseConfig)}
-    changes = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or name not in fields:
-            sys.exit(f"--config {item!r}: give FIELD=VALUE with FIELD one of "
-                     f"{', '.join(sorted(fields))}")
-        changes[name] = ast.literal_eval(value)
-    return changes
 
 
 def main() -> None:
