@@ -72,8 +72,9 @@ class DiagnoseConfig:
     """The sizings and refits try the full Gauss-Newton point after each step their
     linear model predicted to 1 % (:class:`~stickslip_jax.identify.solve.
     LevenbergMarquardtSteps`): an entry linear in its parameters (a drift's settling
-    terms, a creep spectrum's weights) then converges in a few steps where the damped
-    steps crept to the step cap. False: damped steps only (as before 2026-12-05)."""
+    terms, a load) then converges in a few steps where the damped steps crept to the
+    step cap; a nonlinear one (a creep spectrum's softplus weights, a Stribeck speed)
+    keeps its damped path. False: damped steps only (as before 2026-12-05)."""
     passes: tuple | None = None
     """The refit passes each round runs, in order (:mod:`.passes`); None:
     :data:`~.passes.DEFAULT_PASSES`. Leaving one out is its ablation."""
