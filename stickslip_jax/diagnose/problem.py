@@ -15,7 +15,12 @@ import numpy as np
 from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap
 from ..identify.residuals import TraceResiduals, dataset_plan, default_batching
-from ..identify.sensitivities import RecordingPrograms, StepJacobian, perturbed_mask
+from ..identify.sensitivities import (
+    RecordingPrograms,
+    StepJacobian,
+    perturbed_mask,
+    sensor_only_columns,
+)
 from ..identify.solve import ColumnSplitJacobian, LMSettings, solve_least_squares
 from ..identify.step_names import dynamics_names, friction_names, without_absent_directions
 from ..identify.steps import JOINT_GN_TOL
@@ -137,10 +142,18 @@ class FitProgram:
         self.programs: RecordingPrograms | None = None
         """The shared programs it runs (None on an accelerator)."""
         self._shared = self._batched = None
+        self.simulated_columns = pmap.size
+        """Columns of its Jacobian that ride on the mechanics' pass, what the work budget
+        charges (:func:`~.budget.evaluation_work`): on a CPU, the sensor's quantities
+        are derived apart, at the simulated positions
+        (:meth:`~stickslip_jax.identify.sensitivities.RecordingPrograms.sensitivities`),
+        and count nothing."""
         if default_batching() == "map":
             self.programs = problem.recording_programs(pmap.start, pmap.names, specs)
             self._shared = StepJacobian(self.residuals.inner, self.programs,
                                         range(len(problem.data)))
+            self.simulated_columns = int(np.sum(~sensor_only_columns(
+                pmap.leaf_tangents(np.zeros(pmap.size), self.programs.mask))))
         else:
             self._batched = ColumnSplitJacobian(self.residuals)
 
@@ -369,7 +382,7 @@ class Problem:
                               gauss_newton_trial=self.gauss_newton_trial)
         out = solve_least_squares(res, jnp.asarray(theta0, dtype=float), settings,
                                   label=label, echo=None, jacobian=jacobian, value=value)
-        self.budget.charge(solve_work(self.samples, np.size(out.theta), out,
+        self.budget.charge(solve_work(self.samples, program.simulated_columns, out,
                                       program.factor))
         fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)
         self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "

@@ -239,7 +239,7 @@ def _refined_hysteresis(problem: Problem, act: Actuator, rss: float,
     # refinement that to first order stays beyond the tolerance is not polished.
     program = _baseline_program(problem, start)
     r, jac = (np.asarray(a) for a in program(program.pmap.zeros()))
-    problem.budget.charge(problem.evaluation_work(start, jac.shape[1]))
+    problem.budget.charge(problem.evaluation_work(start, program.simulated_columns))
     predicted = float(r @ r) - gauss_newton_drop(r, jac)
     kept = None
     whose = "the model" if after else "the baseline"

@@ -143,7 +143,7 @@ def score_candidates(problem: Problem, act: Actuator, base_names: list[str],
         names = base_names + list(specs) if with_base else list(specs)
         program = problem.program(probe_act, names, specs)
         r_batch, jac = program(np.zeros(program.pmap.size))
-        problem.budget.charge(evaluation_work(problem.samples, jac.shape[1],
+        problem.budget.charge(evaluation_work(problem.samples, program.simulated_columns,
                                               program.factor))
         r = r_batch if r is None else r
         if with_base:

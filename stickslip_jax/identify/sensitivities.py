@@ -55,8 +55,9 @@ by sample instead costs each padded sample a copy of the whole tangent state."""
 
 
 def _row_output(actuator, voltage, n, dt, drive, plan: StepPlan):
-    """Model output q [m] of one recording: ``voltage`` [V] (T,) padded with its last
-    value, ``n`` real samples; past them q repeats its last real value (as
+    """``(output, q)`` of one recording: the model output [m] and the slider position q
+    [m] it reads (the sensor's input), each (T,). ``voltage`` [V] (T,) padded with its
+    last value, ``n`` real samples; past them q repeats its last real value (as
     :class:`~.dataset.Dataset` pads the measurement). The same arithmetic as
     :func:`~.residuals.simulate_dataset` on the real samples."""
     carry, q0 = rest_carry(actuator, voltage[0], drive)
@@ -77,7 +78,7 @@ def _row_output(actuator, voltage, n, dt, drive, plan: StepPlan):
     q = jnp.concatenate([q0[None], qs.reshape(-1)[: t - 1]])
     k = jnp.arange(t)
     q = jnp.where(k < n, q, q[n - 1])
-    return actuator.output_map(dt * k, q)
+    return actuator.output_map(dt * k, q), q
 
 
 @stored_jit
@@ -87,8 +88,9 @@ def _row(actuator, voltage, n, dt, drive, plan):
 
 @stored_jit
 def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
-    """``(q (T,), dq (T, W))``: the output and its derivatives along the W tangents
-    (leading axis of every leaf of ``tangents``) of the ``perturbed`` leaves."""
+    """``(output (T,), d output (T, W), q (T,))``: the output, its derivatives along the
+    W tangents (leading axis of every leaf of ``tangents``) of the ``perturbed`` leaves,
+    and the position the sensor read (:func:`_row_output`)."""
 
     def output(p):
         return _row_output(eqx.combine(p, fixed), voltage, n, dt, drive, plan)
@@ -97,9 +99,47 @@ def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
     if width == 1:
         # One direction: a plain JVP (vmapped, every loop operation would be a length-1
         # vector operation).
-        value, tangent = jax.jvp(output, (perturbed,), (jax.tree.map(lambda x: x[0], tangents),))
-        return value, tangent[:, None]
-    return jax.vmap(lambda t: jax.jvp(output, (perturbed,), (t,)), out_axes=(None, -1))(tangents)
+        value, tangent, q = jax.jvp(output, (perturbed,),
+                                    (jax.tree.map(lambda x: x[0], tangents),), has_aux=True)
+        return value, tangent[:, None], q
+    return jax.vmap(lambda t: jax.jvp(output, (perturbed,), (t,), has_aux=True),
+                    out_axes=(None, -1, None))(tangents)
+
+
+@stored_jit
+def _sensor_tangents(perturbed, fixed, tangents, t, q):
+    """``d output (R, T, W)``: the derivatives of the output map's output at times ``t``
+    [s] (R, T) and read positions ``q`` [m] (R, T) along the W tangents (leading axis)
+    of its ``perturbed`` leaves, the positions held. What a column that moves only the
+    sensor's quantities needs: nothing of the mechanics depends on them."""
+
+    def output(p, t, q):
+        return eqx.combine(p, fixed)(t, q)
+
+    def row(t, q):
+        return jax.vmap(lambda d: jax.jvp(lambda p: output(p, t, q), (perturbed,), (d,))[1],
+                        out_axes=-1)(tangents)
+
+    return jax.vmap(row)(t, q)
+
+
+def sensor_only_columns(tangents) -> np.ndarray:
+    """Which of the k columns of ``tangents`` (a pytree of an actuator's leaves with a
+    leading axis of k, as :meth:`RecordingPrograms.sensitivities` takes) move only the
+    output map's leaves (bool (k,)): every other leaf's tangent exactly 0 there. Such a
+    column's derivative is the output map's own at the simulated positions
+    (:func:`_sensor_tangents`), exactly what the forward pass through the mechanics
+    would carry to it (zero tangents there), without that pass."""
+    leaves = jax.tree.leaves(tangents)
+    k = leaves[0].shape[0]
+    sensor = {id(x) for x in jax.tree.leaves(getattr(tangents, "output_map", None))}
+    if not sensor:
+        return np.zeros(k, dtype=bool)
+    moving = np.zeros(k, dtype=bool)
+    for x in leaves:
+        if id(x) not in sensor:
+            moving |= np.any(np.reshape(np.asarray(x) != 0, (k, -1)), axis=1)
+    return ~moving
 
 
 def tangents_per_call(k: int, width: int) -> int:
@@ -196,7 +236,7 @@ class RecordingPrograms:
         key = ("value", plan, jax.tree.structure(actuator))
         done = self._run(self._order(rows), lambda b: _row(actuator, *self._rows[b], plan),
                          key)
-        return np.stack([np.asarray(done[b]) for b in rows])
+        return np.stack([np.asarray(done[b][0]) for b in rows])
 
     def sensitivities(self, actuator, tangents, plan: StepPlan,
                       rows: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -205,12 +245,37 @@ class RecordingPrograms:
         pytree of the mask's leaves (``eqx.filter(…, mask)`` of an actuator-shaped tree)
         with a leading axis of k on every leaf.
 
-        At most half :attr:`width` tangents go one per call, through the program of a
+        Columns that move only the output map's leaves (:func:`sensor_only_columns`: a
+        sensor's delay, drift, periodic error) are the output map's derivatives at the
+        simulated positions, apart from the mechanics' pass; the others ride on it. At
+        most half :attr:`width` of those go one per call, through the program of a
         single plain JVP (:func:`tangents_per_call`); more, :attr:`width` per call."""
         rows = self._all(rows)
         perturbed, fixed = eqx.partition(actuator, self.mask)
         perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
         tangents = jax.tree.map(lambda x: np.asarray(x, dtype=float), tangents)
+        k = jax.tree.leaves(tangents)[0].shape[0]
+        sensor = sensor_only_columns(tangents)
+        moving = np.flatnonzero(~sensor)
+        t_len = self.data.voltages.shape[1]
+        dq = np.empty((len(rows), t_len, k))
+        if moving.size:
+            q, dq[:, :, moving], positions = self._through_mechanics(
+                perturbed, fixed, jax.tree.map(lambda x: x[moving], tangents), plan, rows)
+        else:
+            done = self._run(self._order(rows), lambda b: _row(actuator, *self._rows[b], plan),
+                             ("value", plan, jax.tree.structure(actuator)))
+            q = np.stack([np.asarray(done[b][0]) for b in rows])
+            positions = np.stack([np.asarray(done[b][1]) for b in rows])
+        if sensor.any():
+            dq[:, :, sensor] = self._through_sensor(perturbed, fixed, tangents, sensor,
+                                                    positions, rows)
+        return q, dq
+
+    def _through_mechanics(self, perturbed, fixed, tangents, plan: StepPlan, rows):
+        """``(q, dq, positions)`` of :meth:`sensitivities` along ``tangents``, through the
+        shared programs of the mechanics; ``positions`` the positions the sensor read
+        [m] (R, T)."""
         k = jax.tree.leaves(tangents)[0].shape[0]
         w = tangents_per_call(k, self.width)
         shares = max(1, -(-k // w))
@@ -228,12 +293,30 @@ class RecordingPrograms:
             perturbed, fixed, parts[t[1]], *self._rows[t[0]], plan), key)
         t_len = self.data.voltages.shape[1]
         q = np.empty((len(rows), t_len))
+        positions = np.empty((len(rows), t_len))
         dq = np.empty((len(rows), t_len, shares * w))
         for i, b in enumerate(rows):
             q[i] = np.asarray(done[(b, 0)][0])
+            positions[i] = np.asarray(done[(b, 0)][2])
             for s in range(shares):
                 dq[i, :, s * w:(s + 1) * w] = np.asarray(done[(b, s)][1])
-        return q, dq[:, :, :k]
+        return q, dq[:, :, :k], positions
+
+    def _through_sensor(self, perturbed, fixed, tangents, columns: np.ndarray,
+                        positions: np.ndarray, rows) -> np.ndarray:
+        """The derivatives (R, T, c) of the outputs along the ``columns`` (bool (k,)) of
+        ``tangents`` that move only the output map (:func:`_sensor_tangents`), at the
+        read ``positions`` [m] (R, T). The columns are padded to the output map's share
+        of the mask, so that one program serves every fit."""
+        cut = jax.tree.map(lambda x: x[columns], tangents.output_map)
+        c = int(np.sum(columns))
+        width = max(c, sum(int(np.size(x)) for x in jax.tree.leaves(perturbed.output_map)))
+        padded = jax.tree.map(
+            lambda x: np.concatenate([x, np.zeros((width - c,) + x.shape[1:])]), cut)
+        times = np.asarray(self.data.dt)[rows, None] * np.arange(positions.shape[1])
+        out = _sensor_tangents(perturbed.output_map, fixed.output_map, padded,
+                               jnp.asarray(times), jnp.asarray(positions))
+        return np.asarray(out)[:, :, :c]
 
 
 class StepJacobian:
