@@ -91,7 +91,7 @@ def test_the_drive_entry_offers_the_freed_corner_of_a_fitted_tanh():
     assert float(start.input_stage.sharpness) == 1.0
     assert set(specs) == {"drive_slew", "drive_tau", "drive_sharpness"}
     assert specs["drive_tau"].floor == pytest.approx(0.4e-6)
-    for other in (ss.SecondOrderInput(9e3, 0.5), ss.ClippedSlewInput(1e6, 5e-6),
+    for other in (ss.ClippedSlewInput(1e6, 5e-6),
                   ss.SlewLimitedInput(1e6, 5e-6, 0.5), ss.LowPassInput(5e-6, 0.5)):
         assert entry.refined_forms(eqx.tree_at(lambda a: a.input_stage, base, other), {}) == []
     said = entry.describe({"drive_slew": 1.2e6, "drive_tau": 8e-6, "drive_sharpness": 40.0})
@@ -127,6 +127,39 @@ def test_a_fitted_low_pass_gets_a_second_pole_that_starts_where_it_adds_nothing(
     np.testing.assert_allclose(gain, 1 / np.sqrt(1 + (2 * np.pi * f * 2e-6) ** 2), rtol=1e-12)
     plt.close(fig)
     assert not entry.plot_form(ax, {"drive_tau": 2e-6})
+
+
+def test_a_fitted_complex_pair_gets_a_real_pole_that_starts_where_it_adds_nothing(saw):
+    u, dt = saw
+    base = ss.lu2015_slc1720()
+    entry = candidate("drive_bandwidth")
+    act = eqx.tree_at(lambda a: a.input_stage, base, ss.SecondOrderInput(12e3, 0.4))
+    [(start, specs)] = entry.refined_forms(act, {})
+    pair, pole = start.input_stage.stages
+    assert isinstance(pair, ss.SecondOrderInput) and isinstance(pole, ss.LowPassInput)
+    assert float(pole.tau) == pytest.approx(0.25 / (2 * np.pi * 12e3), rel=1e-15)
+    assert float(pole.mix) == 0.0
+    assert set(specs) == {"drive_frequency", "drive_damping", "drive_tau2", "drive_mix2"}
+    assert float(specs["drive_frequency"].getter(start)) == 12e3
+    q_act = np.asarray(ss.simulate(act, u, dt=dt))
+    # The same filter; the real pole's faster time scale may refine the stage's steps.
+    np.testing.assert_allclose(ss.simulate(start, u, dt=dt), q_act, rtol=0, atol=1e-12)
+    moved = eqx.tree_at(lambda a: a.input_stage.stages[1].mix, start, jnp.asarray(0.5))
+    assert np.max(np.abs(np.asarray(ss.simulate(moved, u, dt=dt)) - q_act)) > 1e-10
+    # A refined stage is not refined again: three poles are the class's most.
+    assert entry.refined_forms(start, {}) == []
+    params = {"drive_frequency": 12e3, "drive_damping": 0.4, "drive_tau2": float(pole.tau),
+              "drive_mix2": 0.0}
+    said = entry.describe(params)
+    assert "three poles" in said and "12 kHz" in said
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots()
+    assert entry.plot_form(ax, params)
+    f, gain = ax.lines[0].get_xdata(), ax.lines[0].get_ydata()
+    r = f / 12e3  # the pair alone: 1/√((1 − r²)² + (2ζr)²)
+    np.testing.assert_allclose(gain, 1 / np.sqrt((1 - r**2) ** 2 + (0.8 * r) ** 2),
+                               rtol=1e-12)
+    plt.close(fig)
 
 
 # ---- the refinement after an accepted entry -------------------------------------------

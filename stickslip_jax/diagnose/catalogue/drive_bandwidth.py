@@ -43,7 +43,8 @@ diagnose_set03_slew_exact.json and diagnose_dev_slew_exact.json)."""
 SECOND_POLE_SHARE = 0.25
 """Where a fitted low-pass's second pole starts, as a share of its time constant [-]:
 the refit moves it either way (a log quantity); started at the fitted pole it would be
-that pole's twin (no new shape to first order)."""
+that pole's twin (no new shape to first order). A fitted complex pair's real pole
+starts at the same share of its natural period over 2π, ``1/(2π·f₀)``."""
 
 
 @final
@@ -144,9 +145,13 @@ class DriveBandwidthEntry(CatalogueEntry):
           (:class:`ParallelInputs` of two low-passes, ``u + Σ mᵢ·(sᵢ − u)``, the new one
           at mix 0 and a quarter of the fitted time constant): with both mixes free,
           ``H(s) = 1 − m₁ − m₂ + m₁/(1 + τ₁s) + m₂/(1 + τ₂s)``, two real poles and the
-          zeros their mix makes (a zero, a direct feed-through), unity gain at DC.
+          zeros their mix makes (a zero, a direct feed-through), unity gain at DC;
+        - an under-damped two-pole amplifier (a seed's fit) gets a real pole beside
+          it, the same way: ``H(s) = ω²/(s² + 2ζωs + ω²) + m·(1/(1 + τs) − 1)``, three
+          poles and the zeros the mix makes, the new one at mix 0 and
+          ``τ = SECOND_POLE_SHARE/(2π·f₀)``.
 
-        Other stages (the two-pole seeds, a refined one) have none."""
+        A refined stage has none: the class's filter stops at three poles."""
         stage = act.input_stage
         if type(stage) is SlewLimitedInput and float(stage.mix) == 1.0:
             start = eqx.tree_at(lambda a: a.input_stage, act,
@@ -172,9 +177,33 @@ class DriveBandwidthEntry(CatalogueEntry):
                 "drive_mix": ParameterSpec(part(0, "mix"), "linear", 0.1, "-"),
                 "drive_tau2": ParameterSpec(part(1, "tau"), "log", 1.0, "s"),
                 "drive_mix2": ParameterSpec(part(1, "mix"), "linear", 0.1, "-")})]
+        if type(stage) is SecondOrderInput:
+            tau = SECOND_POLE_SHARE / (2.0 * np.pi * float(stage.frequency))
+            start = eqx.tree_at(lambda a: a.input_stage, act, ParallelInputs((
+                stage, LowPassInput(tau, 0.0))))
+
+            def pair(name):
+                return lambda a: getattr(a.input_stage.stages[0], name)
+
+            def pole(name):
+                return lambda a: getattr(a.input_stage.stages[1], name)
+
+            return [(start, {
+                "drive_frequency": ParameterSpec(pair("frequency"), "log", 1.0, "Hz"),
+                "drive_damping": ParameterSpec(pair("damping"), "log", 1.0, "-"),
+                "drive_tau2": ParameterSpec(pole("tau"), "log", 1.0, "s"),
+                "drive_mix2": ParameterSpec(pole("mix"), "linear", 0.1, "-")})]
         return []
 
     def describe(self, params):
+        if "drive_tau2" in params and "drive_frequency" in params:
+            f3 = _half_power_hz(params)
+            return (f"drive filter of three poles: an under-damped pair at "
+                    f"{params['drive_frequency'] / 1e3:.3g} kHz (damping "
+                    f"{params['drive_damping']:.3g}) and a real pole at "
+                    f"{params['drive_tau2'] * 1e6:.3g} µs (mix {params['drive_mix2']:.3g}), "
+                    f"unity gain at DC"
+                    + (f", half power at {f3 / 1e3:.3g} kHz" if np.isfinite(f3) else ""))
         if "drive_tau2" in params:
             f3 = _half_power_hz(params)
             return (f"drive filter of two real poles: {params['drive_tau'] * 1e6:.3g} µs "
@@ -191,7 +220,7 @@ class DriveBandwidthEntry(CatalogueEntry):
                 f"76 %, a hard clip 100 %)")
 
     def plot_form(self, ax, params):
-        """The two-pole drive filter's gain against frequency (:func:`_response`)."""
+        """The refined drive filter's gain against frequency (:func:`_response`)."""
         if "drive_tau2" not in params:
             return False
         f = np.geomspace(10.0, 1e7, 600)
@@ -210,16 +239,21 @@ class DriveBandwidthEntry(CatalogueEntry):
 
 
 def _response(params, f):
-    """``H(2πif)`` of the two-pole drive filter of ``params`` (:meth:`DriveBandwidthEntry.
-    refined_forms`): ``1 − m₁ − m₂ + m₁/(1 + τ₁s) + m₂/(1 + τ₂s)``."""
+    """``H(2πif)`` of the refined drive filter of ``params`` (:meth:`DriveBandwidthEntry.
+    refined_forms`): ``1 − m₁ − m₂ + m₁/(1 + τ₁s) + m₂/(1 + τ₂s)`` (two real poles), or
+    ``ω²/(s² + 2ζωs + ω²) + m₂·(1/(1 + τ₂s) − 1)`` (a complex pair and a real pole)."""
     s = 2j * np.pi * np.asarray(f)
-    m1, m2 = params["drive_mix"], params["drive_mix2"]
-    return (1 - m1 - m2 + m1 / (1 + params["drive_tau"] * s)
-            + m2 / (1 + params["drive_tau2"] * s))
+    m2 = params["drive_mix2"]
+    extra = m2 * (1 / (1 + params["drive_tau2"] * s) - 1)
+    if "drive_frequency" in params:
+        w = 2 * np.pi * params["drive_frequency"]
+        return w**2 / (s**2 + 2 * params["drive_damping"] * w * s + w**2) + extra
+    m1 = params["drive_mix"]
+    return 1 - m1 + m1 / (1 + params["drive_tau"] * s) + extra
 
 
 def _half_power_hz(params) -> float:
-    """The lowest frequency [Hz] where the two-pole filter's gain falls below 1/√2: on
+    """The lowest frequency [Hz] where the refined filter's gain falls below 1/√2: on
     a 1 Hz-100 MHz grid, interpolated in log gain against log frequency between the
     grid points either side (NaN when it never falls there)."""
     f = np.geomspace(1.0, 1e8, 4001)
