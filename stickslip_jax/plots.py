@@ -73,12 +73,22 @@ def colormap(name: str):
     return matplotlib.colormaps[name]
 
 
+SAVE_PAD_INCHES = 0.1
+"""White margin around a saved figure's artists [in] (matplotlib's default)."""
+
+
 def save_figure(fig, path: str | Path) -> Path:
-    """Write a figure atomically (format from the file extension) and close it."""
+    """Write a figure atomically (format from the file extension) and close it.
+
+    Cropped to its artists as ``bbox_inches="tight"`` crops it, from the extents laid
+    out without drawing: "tight" renders the whole figure once to measure it and again
+    to write it (an overlay of 2500 samples: 0.69 s, 0.45 s without the first render;
+    the same image to within a pixel of width)."""
     path = Path(path)
     fmt = path.suffix.lstrip(".") or "png"
+    crop = fig.get_tightbbox().padded(SAVE_PAD_INCHES)
     with atomic_writer(path, "wb") as fh:
-        fig.savefig(fh, format=fmt, dpi=130, bbox_inches="tight")
+        fig.savefig(fh, format=fmt, dpi=130, bbox_inches=crop)
     return path
 
 
