@@ -180,3 +180,28 @@ def test_a_bank_of_modes_is_said_drawn_and_judged_mode_by_mode():
     assert len(ax.lines) == 2  # one excitation each
     assert "7100 Hz" in ax.get_title()
     plt.close(fig)
+
+
+def test_a_weak_slew_share_is_offered_a_start_with_its_lag_scaled_too():
+    """The drive entry's slew limit starts at the probe's small-signal lag τ0 (attach)
+    and, as a second option the sizing weighs by cost, at the share of it the probe
+    measured (not below the refit's floor); a low-pass, or a whole share, has one."""
+    act = ss.lu2015_slc1720()
+    entry = candidate("drive_bandwidth")
+    probes = entry.probes(act, {"max_slew_V_s": 1.5e6, "sample_interval_s": 40e-6})
+    low_pass, slew = probes
+    assert slew.setting["form"] == "slew" and slew.setting["tau"] == 5e-6
+    first, second = entry.attach_options(act, 0.2, slew)
+    assert float(first[0].input_stage.tau) == 5e-6
+    assert float(second[0].input_stage.tau) == pytest.approx(1e-6, rel=1e-15)
+    assert float(second[0].input_stage.slew) == float(first[0].input_stage.slew)
+    assert second[1]["drive_tau"].floor == pytest.approx(0.4e-6)
+    # A share whose τ would fall below the floor starts at the floor.
+    _, weak = entry.attach_options(act, 0.005, slew)
+    assert float(weak[0].input_stage.tau) == pytest.approx(0.4e-6, rel=1e-12)
+    assert len(entry.attach_options(act, 1.5, slew)) == 1
+    assert len(entry.attach_options(act, 0.2, low_pass)) == 1
+    # Other entries offer their attach alone.
+    stribeck = candidate("stribeck")
+    [only] = stribeck.attach_options(act, 0.3, stribeck.probes(act, {})[0])
+    assert float(only[0].friction.stribeck_ratio) == pytest.approx(1.3)

@@ -60,6 +60,7 @@ def first_order_start(problem: Problem, act: Actuator, base_names: list[str],
                       cand: Candidate, strength: float, probe: Probe, shift: np.ndarray):
     """The entry attached at a fraction of its Gauss-Newton strength, with the baseline
     moved by the same fraction of its share of the step: the fraction (1, 1/2, 1/4, 1/8)
+    and the entry's option there (:meth:`~.catalogue.CatalogueEntry.attach_options`)
     whose start costs least (the linearised step overshoots for large effects)."""
     pmap = ParameterMap.make(act, base_names)
     # A linearised shift beyond a factor e of any baseline quantity (θ is logarithmic
@@ -69,13 +70,17 @@ def first_order_start(problem: Problem, act: Actuator, base_names: list[str],
     for frac in (1.0, 0.5, 0.25, 0.125):
         moved = pmap.actuator(jnp.asarray(frac * shift))
         try:
-            start, specs = cand.attach(moved, frac * strength, probe)
-            ParameterMap.make(start, base_names)  # the refit must be able to start here
-            cost = problem.evaluate(start)[0]
+            options = cand.attach_options(moved, frac * strength, probe)
         except ValueError:  # e.g. the moved PI loop folded (a partial sum below zero)
             continue
-        if np.isfinite(cost) and (best is None or cost < best[0]):
-            best = (cost, start, specs)
+        for start, specs in options:
+            try:
+                ParameterMap.make(start, base_names)  # the refit must be able to start here
+                cost = problem.evaluate(start)[0]
+            except ValueError:
+                continue
+            if np.isfinite(cost) and (best is None or cost < best[0]):
+                best = (cost, start, specs)
     if best is None:
         start, specs = cand.attach(act, 0.25 * strength, probe)
         return start, specs

@@ -80,6 +80,15 @@ class CatalogueEntry(abc.ABC):
         """``act`` with the effect at ``strength`` (``probe``'s strength, in its
         ``spec.unit``), and the parameters a refit frees, by name."""
 
+    def attach_options(self, act: Actuator, strength: float,
+                       probe: Probe) -> list[tuple[Actuator, dict[str, ParameterSpec]]]:
+        """Where the entry could start at ``strength``: :meth:`attach`'s start first,
+        then others, for an entry whose first-order strength leaves a parameter's start
+        open (the sizing evaluates each and starts from the cheapest,
+        :func:`~stickslip_jax.diagnose.sizing.first_order_start`). By default
+        :meth:`attach`'s alone."""
+        return [self.attach(act, strength, probe)]
+
     @abc.abstractmethod
     def carry(self, init: Actuator, fitted: Actuator) -> Actuator:
         """``init`` with the entry's component that ``fitted`` (the baseline plus the

@@ -112,14 +112,25 @@ class DriveBandwidthEntry(CatalogueEntry):
                               LowPassInput(mix * st["tau"], 1.0))
             return new, {"drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0,
                                                     "s")}
-        top = st["max_slew"]
-        slew = max(top - min(mix, 1.0) * (top - st["slew"]), 0.05 * top)
-        new = eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(slew, st["tau"]))
-        return new, {"drive_slew": ParameterSpec(lambda a: a.input_stage.slew, "log", 1.0,
-                                                 "V/s"),
-                     "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s",
-                                                floor=min(st.get("tau_floor", 0.0),
-                                                          st["tau"]))}
+        return _slew_start(act, mix, st, st["tau"])
+
+    def attach_options(self, act, strength, probe):
+        """:meth:`attach`'s start, and for a slew limit a second one whose small-signal
+        lag is the probe's share too, ``τ = mix·τ0`` (not below the floor a refit gives
+        τ): below its slew rate a slew limit lags by τ·u̇, so the share maps to it as a
+        low-pass's does. Which is nearer is for the cost to say: at τ0 whatever the
+        share, a weak share's start lags S·τ0 (7.5 V at 1.5 V/µs) on every fast edge
+        (on dev2 set_38, a set without a drive stage, it cost 480x its alternative and
+        the sizing spent its 15 steps coming back), while on a hard limit with an 8 µs
+        lag (the reduced test set of this entry) the share underrates τ and τ0 is the
+        nearer start."""
+        first = self.attach(act, strength, probe)
+        st = probe.setting
+        floor = float(st.get("tau_floor", 0.0))
+        mix = min(max(float(strength), 1e-3), 1.0)
+        if st["form"] != "slew" or floor <= 0 or mix >= 1.0:
+            return [first]
+        return [first, _slew_start(act, mix, st, max(mix * st["tau"], floor))]
 
     def seeds(self, act):
         """Under-damped two-pole amplifiers over 3-20 kHz and damping 0.3-0.7: a step
@@ -236,6 +247,18 @@ class DriveBandwidthEntry(CatalogueEntry):
 
     def carry(self, init, fitted):
         return carry_input_stage(init, fitted)
+
+
+def _slew_start(act, mix: float, setting: dict, tau: float):
+    """``act`` with the slew limit a probe of ``setting`` measured a share ``mix`` of
+    (:meth:`DriveBandwidthEntry.attach`), its small-signal lag ``tau`` [s], and the
+    parameters a refit frees."""
+    top = setting["max_slew"]
+    slew = max(top - min(mix, 1.0) * (top - setting["slew"]), 0.05 * top)
+    new = eqx.tree_at(lambda a: a.input_stage, act, SlewLimitedInput(slew, tau))
+    return new, {"drive_slew": ParameterSpec(lambda a: a.input_stage.slew, "log", 1.0, "V/s"),
+                 "drive_tau": ParameterSpec(lambda a: a.input_stage.tau, "log", 1.0, "s",
+                                            floor=min(setting.get("tau_floor", 0.0), tau))}
 
 
 def _response(params, f):
