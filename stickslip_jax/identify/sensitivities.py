@@ -232,11 +232,15 @@ class RecordingPrograms:
                  ) -> np.ndarray:
         """Model output q [m] of the recordings ``rows`` (default all), (R, T), each
         padded to the dataset's length T with its last real value."""
-        rows = self._all(rows)
+        return self._values(actuator, plan, self._all(rows))[0]
+
+    def _values(self, actuator, plan: StepPlan, rows) -> tuple[np.ndarray, np.ndarray]:
+        """``(outputs, positions)`` [m] (R, T) of the recordings ``rows`` through the
+        value-only program: the model outputs and the positions the sensor read."""
         key = ("value", plan, jax.tree.structure(actuator))
         done = self._run(self._order(rows), lambda b: _row(actuator, *self._rows[b], plan),
                          key)
-        return np.stack([np.asarray(done[b][0]) for b in rows])
+        return tuple(np.stack([np.asarray(done[b][i]) for b in rows]) for i in (0, 1))
 
     def sensitivities(self, actuator, tangents, plan: StepPlan,
                       rows: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -263,10 +267,7 @@ class RecordingPrograms:
             q, dq[:, :, moving], positions = self._through_mechanics(
                 perturbed, fixed, jax.tree.map(lambda x: x[moving], tangents), plan, rows)
         else:
-            done = self._run(self._order(rows), lambda b: _row(actuator, *self._rows[b], plan),
-                             ("value", plan, jax.tree.structure(actuator)))
-            q = np.stack([np.asarray(done[b][0]) for b in rows])
-            positions = np.stack([np.asarray(done[b][1]) for b in rows])
+            q, positions = self._values(actuator, plan, rows)
         if sensor.any():
             dq[:, :, sensor] = self._through_sensor(perturbed, fixed, tangents, sensor,
                                                     positions, rows)

@@ -118,12 +118,12 @@ class DriveBandwidthEntry(CatalogueEntry):
         """:meth:`attach`'s start, and for a slew limit a second one whose small-signal
         lag is the probe's share too, ``τ = mix·τ0`` (not below the floor a refit gives
         τ): below its slew rate a slew limit lags by τ·u̇, so the share maps to it as a
-        low-pass's does. Which is nearer is for the cost to say: at τ0 whatever the
-        share, a weak share's start lags S·τ0 (7.5 V at 1.5 V/µs) on every fast edge
-        (on dev2 set_38, a set without a drive stage, it cost 480x its alternative and
-        the sizing spent its 15 steps coming back), while on a hard limit with an 8 µs
-        lag (the reduced test set of this entry) the share underrates τ and τ0 is the
-        nearer start."""
+        low-pass's does. Neither is right everywhere, so the start's cost chooses
+        (:func:`~stickslip_jax.diagnose.sizing.first_order_start`): at τ0 whatever the
+        share, a weak share's start lags S·τ0 (7.5 V at 1.5 V/µs) on every fast edge,
+        far from a model without a drive stage; on a strong, hard limit the
+        first-order share underrates τ and τ0 is the nearer start. (Measured:
+        benchmarks/README.md, "A weak slew share starts with its lag scaled too".)"""
         first = self.attach(act, strength, probe)
         st = probe.setting
         floor = float(st.get("tau_floor", 0.0))
