@@ -390,3 +390,47 @@ def test_diagnose_figures_have_units_and_legends(tmp_path, monkeypatch):
         assert any(legend_texts(ax) for ax in fig.axes)
     overlays = figs[1]
     assert all(legend_texts(ax) for ax in overlays.axes[len(overlays.axes) // 2:])
+
+
+def test_save_figure_crops_a_png_to_its_ink_as_tight_does(tmp_path):
+    # A figure with wide default margins: the saved PNG is cropped to what it draws plus
+    # the pad, to within a few pixels of the artists' extents ("tight"), and keeps the
+    # pad of white around its ink.
+    from PIL import Image
+
+    from stickslip_jax.plots import SAVE_DPI, SAVE_PAD_INCHES, save_figure, subplots
+
+    def figure():
+        fig, ax = subplots(figsize=(8, 6))
+        fig.subplots_adjust(left=0.3, right=0.6, bottom=0.3, top=0.6)
+        ax.plot([0, 1], [0, 1], label="a line")
+        ax.set_xlabel("x [m]")
+        ax.legend()
+        return fig
+
+    inked = np.asarray(Image.open(save_figure(figure(), tmp_path / "ink.png")))
+    fig = figure()
+    fig.savefig(tmp_path / "tight.png", dpi=SAVE_DPI, bbox_inches="tight",
+                pad_inches=SAVE_PAD_INCHES)
+    tight = np.asarray(Image.open(tmp_path / "tight.png"))
+    assert inked.shape[1] < 0.5 * 8 * SAVE_DPI  # cropped from the full width
+    np.testing.assert_allclose(inked.shape[:2], tight.shape[:2], atol=6)
+    pad = int(SAVE_PAD_INCHES * SAVE_DPI)
+    ink = np.any(inked[..., :3] != 255, axis=2)
+    rows, cols = np.flatnonzero(ink.any(axis=1)), np.flatnonzero(ink.any(axis=0))
+    assert rows[0] == cols[0] == pad
+    assert inked.shape[0] - 1 - rows[-1] == inked.shape[1] - 1 - cols[-1] == pad
+
+
+def test_save_figure_keeps_what_runs_off_the_canvas(tmp_path):
+    # A label placed beyond the figure's right edge: ink reaches the canvas's edge, so the
+    # crop is the artists' extents, which take in the whole label (as "tight" does).
+    from PIL import Image
+
+    from stickslip_jax.plots import SAVE_DPI, save_figure, subplots
+
+    fig, ax = subplots(figsize=(4, 3))
+    ax.plot([0, 1], [0, 1])
+    fig.text(0.9, 0.5, "a label that runs off the edge of the figure")
+    inked = np.asarray(Image.open(save_figure(fig, tmp_path / "off.png")))
+    assert inked.shape[1] > 4 * SAVE_DPI + 100
