@@ -339,8 +339,10 @@ class Problem:
 
         It ends by the Gauss-Newton test (:data:`~stickslip_jax.identify.steps.
         JOINT_GN_TOL`: the full Gauss-Newton step from the point is shorter than a
-        tenth of a standard error), so that a fit said to converge is at its minimiser
-        to a tenth of the errors the data allow, whatever its start; one that is not
+        tenth of a standard error; a step within what the parameters' domains allow,
+        :meth:`~stickslip_jax.identify.parameters.ParameterMap.step_bounds`), so that a
+        fit said to converge is at its minimiser, or at a weight's bound, to a tenth
+        of the errors the data allow, whatever its start; one that is not
         there after ``max_steps`` says so. ``initial_damping``: the LM damping at the
         start (small for a start near the optimum). ``project``: an orthonormal
         basis (samples × k) whose span is taken out of the residual
@@ -381,7 +383,8 @@ class Problem:
                               initial_damping=initial_damping,
                               gauss_newton_trial=self.gauss_newton_trial)
         out = solve_least_squares(res, jnp.asarray(theta0, dtype=float), settings,
-                                  label=label, echo=None, jacobian=jacobian, value=value)
+                                  label=label, echo=None, jacobian=jacobian, value=value,
+                                  step_bounds=program.pmap.step_bounds)
         self.budget.charge(solve_work(self.samples, program.simulated_columns, out,
                                       program.factor))
         fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)

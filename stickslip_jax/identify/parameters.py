@@ -236,6 +236,34 @@ class FreeParameter:
             return d
         raise ValueError(self.kind)  # pragma: no cover - guarded by _kind
 
+    def step_bounds(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)``: the steps δθ of this slice (each (size,)) for which the value,
+        moved to first order (value + ∂value/∂θ·δθ), stays in its domain: ≥ 0 (log,
+        nonneg, softplus; ≥ the floor of a floored log), inside (0, 1) (logit), every
+        partial sum ≥ 0 (pi_cumlog); unbounded for linear. A Gauss-Newton step that
+        leaves them (:func:`~.solve.gauss_newton_drop`) claims a fall the model cannot
+        reach: a weight whose optimum is 0 approaches it only as θ → −∞."""
+        theta = np.atleast_1d(np.asarray(theta, dtype=float))
+        inf = np.full(theta.size, np.inf)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            if self.kind == "log":
+                value = np.atleast_1d(np.asarray(self.start, dtype=float)) * np.exp(theta)
+                room = np.maximum(value - self.floor, 0.0) / value
+                return np.where(np.isfinite(room), -room, -1.0), inf
+            if self.kind in ("softplus", "nonneg"):
+                _, theta0 = self._softplus_scale()
+                x = theta + theta0
+                # softplus(x)/sigmoid(x), written to stay finite far below 0 (→ 1)
+                ratio = np.logaddexp(x, 0.0) * (1.0 + np.exp(-x))
+                ratio = np.where(x < -30.0, 1.0, ratio)
+                return -ratio, inf
+            if self.kind == "logit":
+                s = _sigmoid(theta + np.log(self.start / (1.0 - self.start)), np)
+                return -1.0 / (1.0 - s), 1.0 / s
+            if self.kind == "pi_cumlog":
+                return np.full(theta.size, -1.0), inf
+        return -inf, inf
+
 
 def _sigmoid(x, xp):
     return jax.nn.sigmoid(x) if xp is jnp else 1.0 / (1.0 + np.exp(-x))
@@ -356,6 +384,17 @@ class ParameterMap(eqx.Module):
         for p in self.free:
             out[sl[p.name], sl[p.name]] = p.derivative(theta[sl[p.name]])
         return out
+
+    def step_bounds(self, theta) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)`` over θ: the steps that keep every value in its domain to first
+        order (:meth:`FreeParameter.step_bounds`, slice by slice)."""
+        sl = self.slices()
+        theta = np.asarray(theta, dtype=float)
+        parts = [p.step_bounds(theta[sl[p.name]]) for p in self.free]
+        if not parts:
+            return np.zeros(0), np.zeros(0)
+        return (np.concatenate([lo for lo, _ in parts]),
+                np.concatenate([hi for _, hi in parts]))
 
     def leaf_tangents(self, theta, mask):
         """The derivatives of the ``mask`` leaves of :meth:`actuator` along each

@@ -186,6 +186,34 @@ class LevenbergMarquardtSteps:
     damped step is tried next (:func:`solve_least_squares` counts the two as one step);
     an accepted one updates λ as any step does. After a rejection the next trial waits
     until λ has fallen below where it was: the model failed at that reach.
+
+    ``step_bounds``: ``y ↦ (lo, hi)``, the steps each coordinate's domain allows to first
+    order (:meth:`~.parameters.ParameterMap.step_bounds`, in y's units). After an
+    accepted point whose Gauss-Newton step leaves them, the next point tried is a
+    *bound trial*, made from the least-squares step within them
+    (:func:`bounded_gauss_newton_step`):
+
+    - where that step puts no coordinate at a bound, the step itself (the Gauss-Newton
+      point of the bounded model);
+    - where it puts some at a bound, each of those is moved on until its part of the fit
+      is negligible, and the others take λ's damped step on the residual with those at
+      their bounds (undamped, a dozen correlated creep weights' trial failed by a
+      factor 1e6). A coordinate whose first-order step to its bound alone lowers the
+      cost by P_i moves ln(P_i / (``bound_tolerance``·σ̂²)) times that step (σ̂² =
+      rᵀr/(N − p); at least once): a weight of log kind to the share
+      ``bound_tolerance``·σ̂²/P_i of its value, and what its removal would still lower
+      the cost by (P_i shrinks with the weight, to first order in proportion where
+      the data pull it below 0) to ``bound_tolerance`` noise variances.
+
+    A weight whose optimum is 0 lies at θ = −∞: the damped steps approach it ever more
+    slowly (its column shrinks with it while λ does not: a viscous slope's sizing lost
+    8 % of its distance to the optimum per step); the trial takes it there in one step,
+    no deeper than the Gauss-Newton test needs (moved to a fixed 1e-3 of their values,
+    weights went far deeper, and the next fit, the sizing with the baseline free, could
+    not revive one: its column, and so the scale of that fit's coordinates, was as
+    small, and every step overflowed). A trial is accepted by the same test, against
+    the fall the bounded model predicted; a rejected one leaves λ as it was and the
+    damped step is tried next (as a Gauss-Newton trial).
     """
 
     HIGH_CUTOFF = 0.99
@@ -207,7 +235,9 @@ class LevenbergMarquardtSteps:
     A rejected step raises λ 4x in both (``LOW_CONSTANT``)."""
 
     def __init__(self, y0, *, step_size: float = 1.0, rtol: float = 0.0, atol: float = 0.0,
-                 damping_update: str = "classical", gauss_newton_trial: bool = False):
+                 damping_update: str = "classical", gauss_newton_trial: bool = False,
+                 step_bounds: Callable[[np.ndarray], tuple] | None = None,
+                 bound_tolerance: float = 0.01):
         if damping_update not in self.DAMPING_UPDATES:
             raise ValueError(f"damping_update must be one of {self.DAMPING_UPDATES}, "
                              f"got {damping_update!r}")
@@ -217,6 +247,11 @@ class LevenbergMarquardtSteps:
         """Whether :attr:`y_eval` is a full Gauss-Newton point (``gauss_newton_trial``)."""
         self.trial_failed_at = 0.0
         """The step size (1/λ) when a trial was last rejected (0: none was)."""
+        self.step_bounds = step_bounds
+        self.bound_tolerance = float(bound_tolerance)
+        self._bound_predicted = 0.0  # the bounded model's change of ½Σr² for that trial
+        self.trying_bound = False
+        """Whether :attr:`y_eval` is a bound trial (``step_bounds``)."""
         self.gain_ratio = np.nan
         """ρ of the point last decided: the cost's fall over the fall the linear model
         predicted (nan for the start)."""
@@ -246,8 +281,11 @@ class LevenbergMarquardtSteps:
         reference = rtr if reference_cost is None else float(reference_cost)
         with np.errstate(over="ignore"):  # a point off the scale costs inf: rejected
             cost_diff = 0.5 * float(np.sum(value**2)) - 0.5 * reference
-        predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y) + self.residual)
-                                        ** 2)) - rtr)
+        if self.trying_bound:  # moved past the model's bound: the bounded step's fall
+            predicted = self._bound_predicted
+        else:
+            predicted = 0.5 * (float(np.sum((self.jac @ (self.y_eval - self.y)
+                                             + self.residual) ** 2)) - rtr)
         self.predicted_fall = -2.0 * predicted
         with np.errstate(divide="ignore", invalid="ignore"):
             self.gain_ratio = cost_diff / predicted if predicted < 0 else np.nan
@@ -261,7 +299,9 @@ class LevenbergMarquardtSteps:
         here; a rejected point needs no Jacobian (``jac`` None)."""
         value = np.asarray(value, dtype=float)
         accept, good = self.decide(value) if decision is None else decision
-        if not accept and self.trying_gauss_newton:
+        if not accept and self.trying_bound:
+            pass  # λ's own step is untried: try it next, λ as it was
+        elif not accept and self.trying_gauss_newton:
             # The undamped trial failed: λ's own step is untried, try it next.
             self.trial_failed_at = self.step_size
         elif not accept:
@@ -277,18 +317,81 @@ class LevenbergMarquardtSteps:
             self.accepted += 1
         else:
             self.terminate = False
+        bound_step = self._bound_trial() if accept and self.step_bounds is not None else None
+        self.trying_bound = bound_step is not None
         self.trying_gauss_newton = bool(self.gauss_newton_trial and accept and good
-                                        and self.step_size > self.trial_failed_at)
+                                        and self.step_size > self.trial_failed_at
+                                        and not self.trying_bound)
+        if self.trying_bound:
+            self.y_eval = self.y + bound_step
+            return accept
         step = self._gauss_newton_step() if self.trying_gauss_newton else self._damped_step()
         self.y_eval = self.y + (-step)
         return accept
 
+    @property
+    def trying_trial(self) -> bool:
+        """Whether :attr:`y_eval` is a trial (Gauss-Newton or bound) that, rejected, is
+        followed at once by λ's damped step from the same point."""
+        return self.trying_gauss_newton or self.trying_bound
+
+    def _bound_trial(self) -> np.ndarray | None:
+        """The bound trial's step from :attr:`y` (class docstring), or None where the
+        Gauss-Newton step stays within the bounds or the bounded model's cost would not
+        fall."""
+        lo, hi = (np.asarray(b, dtype=float) for b in self.step_bounds(self.y))
+        if not np.all(np.isfinite(self.jac)):
+            return None
+        gauss_newton = -self._gauss_newton_step()
+        if np.all((gauss_newton >= lo) & (gauss_newton <= hi)):
+            return None
+        # Which coordinates the data put at their bounds: the undamped step's (a damped
+        # step shortens a shrinking weight's move with its column, and never meets it).
+        delta = bounded_gauss_newton_step(self.jac, self.residual, lo, hi)
+        with np.errstate(invalid="ignore"):  # (an infinite bound is never met)
+            bound = np.where(delta <= lo + 1e-9 * np.abs(lo), lo,
+                             np.where(delta >= hi - 1e-9 * np.abs(hi), hi, np.nan))
+        met = np.isfinite(bound)
+        if not met.any():
+            # Within the bounds and off them: the Gauss-Newton point of the bounded model
+            # (where the unbounded one, beyond a bound, is not worth a trial).
+            self._bound_predicted = 0.5 * (float(np.sum((self.jac @ delta
+                                                         + self.residual) ** 2))
+                                           - float(np.sum(self.residual**2)))
+            return delta if self._bound_predicted < 0 else None
+        # The others take λ's damped step on the residual with those at their bounds (the
+        # undamped one reaches far along directions the data barely see: a dozen
+        # correlated creep weights' trial failed by a factor 1e6).
+        at_bound = self.residual + self.jac[:, met] @ bound[met]
+        free = ~met
+        delta = np.zeros_like(delta)
+        if free.any():
+            delta[free] = bounded_gauss_newton_step(self.jac[:, free], at_bound, -np.inf,
+                                                    np.inf, self._damping)
+        rtr = float(np.sum(self.residual**2))
+        model = at_bound + self.jac[:, free] @ delta[free]
+        self._bound_predicted = 0.5 * (float(np.sum(model**2)) - rtr)
+        if not self._bound_predicted < 0:
+            return None
+        sigma2 = rtr / max(self.residual.size - self.y.size, 1)
+        moved = self.jac[:, met] * bound[met]  # each one's first-order move to its bound
+        part = rtr - np.sum((self.residual[:, None] + moved) ** 2, axis=0)  # P_i
+        with np.errstate(divide="ignore", invalid="ignore"):
+            reach = np.log(part / (self.bound_tolerance * sigma2))
+        delta[met] = bound[met] * np.where(reach > 1.0, reach, 1.0)
+        return delta
+
     def _gauss_newton_step(self) -> np.ndarray:
         return np.linalg.lstsq(self.jac, self.residual, rcond=GAUSS_NEWTON_RCOND)[0]
 
-    def _damped_step(self) -> np.ndarray:
+    @property
+    def _damping(self) -> float:
+        """λ, the damping of the next damped step (1/step size, capped)."""
         eps = np.finfo(float).eps
-        lm = 1.0 / self.step_size if self.step_size > eps else np.finfo(float).max
+        return 1.0 / self.step_size if self.step_size > eps else np.finfo(float).max
+
+    def _damped_step(self) -> np.ndarray:
+        lm = self._damping
         k = self.y.size
         a = np.concatenate([self.jac, np.sqrt(lm) * np.eye(k)])
         q, r = np.linalg.qr(a)
@@ -310,12 +413,22 @@ GAUSS_NEWTON_RCOND = 1e-9
 data do not determine [-]: the Gauss-Newton step and its test leave them out."""
 
 
-def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND) -> float:
+def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
+                      bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """What the full Gauss-Newton step from a point lowers the cost ``rᵀr`` by, to
     first order: with residual r (N,) and Jacobian J (N, p), δ = −(JᵀJ)⁺Jᵀr lowers it by
     Δ = gᵀ(JᵀJ)⁺g (g = Jᵀr). Directions whose singular value is below ``rcond`` times
     the largest (undetermined ones) are left out. [units of rᵀr]; 0 when ``jac`` is
-    not finite."""
+    not finite.
+
+    ``bounds``: ``(lo, hi)`` (p,), the steps the parameters' domains allow to first order
+    (:meth:`~.parameters.ParameterMap.step_bounds`, in the coordinates of ``jac``). A
+    step that leaves them is replaced by the least-squares step within them (bounded
+    variable least squares on the QR of J): a weight whose optimum is its bound, 0,
+    approaches it only as θ → −∞, and the unbounded step, which would carry it below
+    0, promises a fall no step can give, however close the weight is (its drop does
+    not shrink with the weight), so the fit never converged. Within the bounds the
+    two steps are the same and so is the drop (the same arithmetic)."""
     r = np.asarray(residual, dtype=float)
     j = np.asarray(jac, dtype=float)
     if not np.all(np.isfinite(j)):
@@ -325,20 +438,56 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND) -> fl
     w, v = np.linalg.eigh(h)
     keep = w > (rcond**2) * max(float(w[-1]), 1e-300)
     gv = v.T @ g
-    return float(np.sum(gv[keep] ** 2 / w[keep]))
+    drop = float(np.sum(gv[keep] ** 2 / w[keep]))
+    if bounds is None:
+        return drop
+    lo, hi = (np.asarray(b, dtype=float) for b in bounds)
+    step = -(v[:, keep] @ (gv[keep] / w[keep]))
+    if np.all((step >= lo) & (step <= hi)):
+        return drop
+    return min(drop, _bounded_drop(j, r, lo, hi))
 
 
-def gauss_newton_distance(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND) -> float:
+def bounded_gauss_newton_step(jac, residual, lo, hi, damping: float = 0.0) -> np.ndarray:
+    """The step δ (p,) that minimises ``|r + Jδ|² + damping·|δ|²`` within ``lo ≤ δ ≤ hi``
+    (bounded-variable least squares on the triangle of the QR of J, stacked on
+    √damping·I for a damped step: the same minimum, p rows instead of N; the bounds
+    widened to hold 0, the point itself)."""
+    from scipy.optimize import lsq_linear
+
+    jac = np.asarray(jac, dtype=float)
+    residual = np.asarray(residual, dtype=float)
+    if damping > 0:
+        k = jac.shape[1]
+        jac = np.concatenate([jac, np.sqrt(damping) * np.eye(k)])
+        residual = np.concatenate([residual, np.zeros(k)])
+    q, tri = np.linalg.qr(jac)
+    c = q.T @ residual
+    bounds = (np.minimum(lo, 0.0), np.maximum(hi, 0.0))
+    return lsq_linear(tri, -c, bounds=bounds, method="bvls").x
+
+
+def _bounded_drop(jac: np.ndarray, residual: np.ndarray, lo: np.ndarray,
+                  hi: np.ndarray) -> float:
+    """``rᵀr − min |r + Jδ|²`` over lo ≤ δ ≤ hi (:func:`bounded_gauss_newton_step`)."""
+    delta = bounded_gauss_newton_step(jac, residual, lo, hi)
+    return max(float(residual @ residual) - float(np.sum((jac @ delta + residual) ** 2)),
+               0.0)
+
+
+def gauss_newton_distance(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
+                          bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Squared length of the full Gauss-Newton step from a point, in standard errors:
-    its cost drop (:func:`gauss_newton_drop`) divided by σ̂² = rᵀr/(N − p), the step's
-    Mahalanobis length squared under the covariance σ̂²(JᵀJ)⁺. [-]
+    its cost drop (:func:`gauss_newton_drop`, within ``bounds`` when given) divided by
+    σ̂² = rᵀr/(N − p), the step's Mahalanobis length squared under the covariance
+    σ̂²(JᵀJ)⁺. [-]
     """
     r = np.asarray(residual, dtype=float)
     n, p = np.shape(jac)
     sigma2 = float(r @ r) / max(n - p, 1)
     if not (np.isfinite(sigma2) and sigma2 > 0 and np.all(np.isfinite(jac))):
         return float("inf") if not np.isfinite(sigma2) else 0.0
-    return gauss_newton_drop(r, jac, rcond=rcond) / sigma2
+    return gauss_newton_drop(r, jac, rcond=rcond, bounds=bounds) / sigma2
 
 
 def value_and_jacobian(residuals: Callable, theta):
@@ -389,6 +538,7 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
                         label: str = "fit", echo: Callable[[str], None] | None = None,
                         jacobian: Callable | None = None, value: Callable | None = None,
                         stop_when: Callable[[np.ndarray], str] | None = None,
+                        step_bounds: Callable[[np.ndarray], tuple] | None = None,
                         **changes) -> SolveResult:
     """Minimise ``Σ residuals(θ)²`` from ``theta0`` with Levenberg-Marquardt, run as
     ``settings`` (:class:`LMSettings`; default ``LMSettings()``) with ``changes`` to
@@ -459,6 +609,11 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
     step the linear model predicted well, try the full Gauss-Newton point next
     (:class:`LevenbergMarquardtSteps`).
 
+    ``step_bounds``: ``θ ↦ (lo, hi)``, the steps δθ each parameter's domain allows to
+    first order (:meth:`~.parameters.ParameterMap.step_bounds`); the Gauss-Newton test
+    then measures the step within them (:func:`gauss_newton_drop`), so that a fit whose
+    optimum puts a weight at its bound (an entry's form with no part there) converges.
+
     ``stop_when``: ``θ ↦ reason``, asked at each accepted point after the start; a
     non-empty reason ends the solve there, not converged, with the reason in
     ``interrupted`` and the damping to go on with in ``damping`` (the caller changes
@@ -520,9 +675,16 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
     if gn_tol is not None:
         # Only the point test decides (the Cauchy test never passes at 0).
         rtol = atol = ftol = 0.0
+    bounds_at = None
+    if step_bounds is not None:
+        def bounds_at(phi):  # θ = θ0 + φ/d: a step δφ = d·δθ
+            lo, hi = step_bounds(np.asarray(theta0) + np.asarray(phi) / d)
+            return d * np.asarray(lo), d * np.asarray(hi)
     lm = LevenbergMarquardtSteps(phi0, step_size=1.0 / initial_damping, rtol=rtol, atol=atol,
                                  damping_update=damping_update,
-                                 gauss_newton_trial=settings.gauss_newton_trial)
+                                 gauss_newton_trial=settings.gauss_newton_trial,
+                                 step_bounds=bounds_at,
+                                 bound_tolerance=gn_tol if gn_tol is not None else 0.01)
     costs: list[float] = []  # cost at each accepted point, the start first
     residual_start = None
     jac_accepted = jac  # the Jacobian (in φ) at the last accepted point
@@ -556,11 +718,11 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
         return lm.step(value, jac, decision)
 
     for n in range(max_steps + 1):
-        gauss_newton_point = lm.trying_gauss_newton
+        trial_point = lm.trying_trial
         accepted_now = take(n)
-        if gauss_newton_point and not accepted_now:
-            # A rejected Gauss-Newton trial is not one of the steps: the damped point it
-            # stood in for is tried at once, so where every trial fails the fit takes
+        if trial_point and not accepted_now:
+            # A rejected trial (Gauss-Newton or bound) is not one of the steps: the damped
+            # point it stood in for is tried at once, so where every trial fails the fit takes
             # the damped steps alone, the same path (an evaluation more per trial).
             accepted_now = take(n)
         if accepted_now:
@@ -575,7 +737,8 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
         if lm.accepted > len(costs):
             costs.append(cost)
             if gn_tol is not None:  # (value, jac) are this accepted point's
-                distance = gauss_newton_distance(value, jac)
+                bounds = None if bounds_at is None else bounds_at(lm.y)
+                distance = gauss_newton_distance(value, jac, bounds=bounds)
                 if echo is not None:
                     echo(f"  {label}: Gauss-Newton step {np.sqrt(distance):.3g} SE")
                 if distance <= gn_tol:

@@ -1,0 +1,95 @@
+"""The Gauss-Newton test within the parameters' domains: a weight whose optimum is its
+bound (0) is reached only as θ → −∞, and the unbounded Gauss-Newton step, which would
+carry it below 0, promises a fall that does not shrink as the weight does, so a fit
+there never passed the test. Within the domains the step is bounded and the fit
+converges."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from stickslip_jax.identify.parameters import FreeParameter
+from stickslip_jax.identify.solve import gauss_newton_drop, solve_least_squares
+
+
+@pytest.mark.parametrize("kind, start, floor, theta", [
+    ("log", 2.0, 0.0, 0.3), ("log", 2.0, 0.5, -0.2), ("nonneg", 0.0, 0.0, -3.0),
+    ("nonneg", 0.0, 0.0, 25.0), ("softplus", 0.7, 0.0, 1.5), ("logit", 0.3, 0.0, 0.4),
+])
+def test_the_first_order_move_to_a_bound_reaches_it(kind, start, floor, theta):
+    p = FreeParameter("w", kind, 1, np.asarray(start), 0.5, floor)
+    value = float(p.to_physical(np.array(theta), xp=np))
+    slope = float(p.derivative(np.array([theta]))[0, 0])
+    lo, hi = p.step_bounds(np.array([theta]))
+    least = 1e-300 if kind != "log" else floor
+    np.testing.assert_allclose(value + slope * lo[0], least, atol=1e-12 * value)
+    if kind == "logit":
+        np.testing.assert_allclose(value + slope * hi[0], 1.0, rtol=1e-12)
+    else:
+        assert hi[0] == np.inf
+
+
+def test_linear_and_pi_bounds():
+    lin = FreeParameter("x", "linear", 2, np.zeros(2), 1.0)
+    assert np.all(lin.step_bounds(np.zeros(2))[0] == -np.inf)
+    pi = FreeParameter("pi", "pi_cumlog", 3, np.array([1.0, 0.5, 0.2]))
+    np.testing.assert_array_equal(pi.step_bounds(np.zeros(3))[0], [-1.0, -1.0, -1.0])
+
+
+def _problem(rng, n=400):
+    """Data with a negative part along a direction only a non-negative weight reaches
+    (besides two free coefficients), and white noise of σ = 0.01."""
+    basis = rng.standard_normal((n, 3))
+    y = basis @ np.array([1.0, -0.5, -0.2]) + 0.01 * rng.standard_normal(n)
+    return jnp.asarray(basis), jnp.asarray(y)
+
+
+def test_the_bounded_drop_is_what_setting_the_weight_to_zero_gives():
+    basis, y = _problem(np.random.default_rng(3))
+    # At a small weight v: residual r = B·(c, v) − y with c at its optimum given v.
+    v = 1e-3
+    c = np.linalg.lstsq(np.asarray(basis[:, :2]), np.asarray(y - v * basis[:, 2]),
+                        rcond=None)[0]
+    r = np.asarray(basis @ jnp.array([c[0], c[1], v]) - y)
+    jac = np.asarray(basis) * np.array([1.0, 1.0, v])  # θ = log v for the weight
+    free = gauss_newton_drop(r, jac)
+    lo = np.array([-np.inf, -np.inf, -1.0])
+    bounded = gauss_newton_drop(r, jac, bounds=(lo, np.full(3, np.inf)))
+    at_zero = np.linalg.lstsq(np.asarray(basis[:, :2]), np.asarray(y), rcond=None)[1][0]
+    assert free > 100 * bounded  # the unbounded step crosses 0 for a fall it cannot have
+    np.testing.assert_allclose(float(r @ r) - bounded, at_zero, rtol=1e-9)
+    # A step within the bounds is left as it was.
+    wide = (np.full(3, -1e9), np.full(3, np.inf))
+    assert gauss_newton_drop(r, jac, bounds=wide) == free
+
+
+def test_a_weight_at_its_bound_converges_within_the_domain():
+    basis, y = _problem(np.random.default_rng(4))
+    weight = FreeParameter("w", "nonneg", 1, np.asarray(0.0), 1.0)
+
+    def residuals(theta):
+        return (basis[:, :2] @ theta[:2] + basis[:, 2] * weight.to_physical(theta[2:])
+                - y)
+
+    def bounds(theta):
+        lo, hi = weight.step_bounds(theta[2:])
+        return np.r_[-np.inf, -np.inf, lo], np.r_[np.inf, np.inf, hi]
+
+    start = jnp.array([0.0, 0.0, 20.0])  # the weight at softplus(0) = 0.69; its optimum is 0
+    capped = solve_least_squares(residuals, start, gn_tol=0.01, max_steps=30)
+    bounded = solve_least_squares(residuals, start, gn_tol=0.01, max_steps=30,
+                                  step_bounds=bounds)
+    assert not capped.converged and capped.iterations == 30
+    # The damped steps creep towards the bound (the weight's column shrinks with it while
+    # the damping does not); the bound trial takes the weight to where its part of the
+    # cost is within the test's tolerance, and no deeper than a factor e beyond it.
+    assert bounded.converged and bounded.iterations <= 5
+    value = float(weight.to_physical(bounded.theta[2:], xp=np))
+    assert 1e-8 < value < 1e-5
+    # Within a tenth of a noise variance of the bounded optimum (the weight at 0), where
+    # the capped fit is not.
+    sigma2 = bounded.cost_end / (basis.shape[0] - 3)
+    coef, at_zero = np.linalg.lstsq(np.asarray(basis[:, :2]), np.asarray(y), rcond=None)[:2]
+    least = float(at_zero[0])
+    assert bounded.cost_end - least < 0.01 * sigma2 < capped.cost_end - least
+    np.testing.assert_allclose(bounded.theta[:2], coef, atol=5e-4)  # a standard error
