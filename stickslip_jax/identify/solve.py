@@ -299,6 +299,10 @@ class LevenbergMarquardtSteps:
         here; a rejected point needs no Jacobian (``jac`` None)."""
         value = np.asarray(value, dtype=float)
         accept, good = self.decide(value) if decision is None else decision
+        if accept and self.residual is not None and not np.all(np.isfinite(jac)):
+            # No step can be taken from a point whose derivatives the simulator could not
+            # give (seen after a bound trial took a sensor delay towards 0): rejected.
+            accept = good = False
         if not accept and self.trying_bound:
             pass  # λ's own step is untried: try it next, λ as it was
         elif not accept and self.trying_gauss_newton:
@@ -704,18 +708,20 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
     # point the one before proposed, and accepts or rejects it.
     def take(n: int) -> bool:  # evaluate the point step n tries; accept or reject it
         nonlocal value, jac, reference_cost
-        decision = None
+        decision = trial_cost = None
         if n and value_of is not None:  # the point this step tries, its value first
             trial_cost, trial = value_cost(lm.y_eval)
             decision = lm.decide(trial, reference_cost)
             if decision[0]:
                 value, jac = evaluate(lm.y_eval, (theta0, d))
-                reference_cost = trial_cost
             else:
                 value, jac = trial, None
         elif n:  # the point this step tries (the start's was evaluated above)
             value, jac = evaluate(lm.y_eval, (theta0, d))
-        return lm.step(value, jac, decision)
+        accepted = lm.step(value, jac, decision)
+        if accepted and trial_cost is not None:
+            reference_cost = trial_cost
+        return accepted
 
     for n in range(max_steps + 1):
         trial_point = lm.trying_trial
