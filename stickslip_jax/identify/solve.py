@@ -346,6 +346,12 @@ class LevenbergMarquardtSteps:
         lo, hi = (np.asarray(b, dtype=float) for b in self.step_bounds(self.y))
         if not np.all(np.isfinite(self.jac)):
             return None
+        try:
+            return self._bounded_trial_step(lo, hi)
+        except (np.linalg.LinAlgError, ValueError):  # no trial where the algebra fails
+            return None
+
+    def _bounded_trial_step(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
         gauss_newton = -self._gauss_newton_step()
         if np.all((gauss_newton >= lo) & (gauss_newton <= hi)):
             return None
@@ -449,7 +455,10 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     step = -(v[:, keep] @ (gv[keep] / w[keep]))
     if np.all((step >= lo) & (step <= hi)):
         return drop
-    return min(drop, _bounded_drop(j, r, lo, hi))
+    try:
+        return min(drop, _bounded_drop(j, r, lo, hi))
+    except (np.linalg.LinAlgError, ValueError):  # the unbounded drop: no convergence claimed
+        return drop
 
 
 def bounded_gauss_newton_step(jac, residual, lo, hi, damping: float = 0.0) -> np.ndarray:
