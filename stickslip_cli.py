@@ -4,7 +4,8 @@ A compiled JAX loop does not return to Python for tens of seconds, and Python ru
 signal handlers only between its own instructions, in the main thread; a
 KeyboardInterrupt raised elsewhere (in a garbage-collection callback of XLA's) is
 printed and ignored. So the command runs in a worker thread, and the main thread does
-nothing but wait for it and for signals. On SIGINT or SIGTERM the handler aborts the
+nothing but wait for it and for signals. On SIGINT or SIGTERM the handler kills the figure
+helper processes (:func:`stickslip_jax.figure_helper.stop_all`), aborts the
 outputs being staged (:func:`stickslip_jax.staging.abort_active`: waits for a move into
 place under way, removes what was staged, releases the output locks), prints one line
 and ends the process with 130 (SIGINT) or 143 (SIGTERM), whatever the worker is doing.
@@ -37,7 +38,10 @@ def _stop(signum, frame) -> None:  # noqa: ARG001 - the signal module's signatur
     quiet = open(os.devnull, "w")  # noqa: SIM115 - open until the process ends
     sys.stdout = sys.stderr = quiet
     staging = sys.modules.get("stickslip_jax.staging")  # not imported: nothing staged
+    helpers = sys.modules.get("stickslip_jax.figure_helper")
     try:
+        if helpers is not None:  # first: no figure may land in what is removed next
+            helpers.stop_all()
         if staging is not None:
             staging.abort_active(barrier=True)
         name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name

@@ -7,6 +7,9 @@ folder), the workers share compiled programs through JAX's persistent cache
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# Commands run in-process here draw their figures without a helper process: two test
+# workers already keep both cores busy (tests/test_figure_helper.py tests the helper).
+os.environ.setdefault("STICKSLIP_FIGURE_HELPER", "0")
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

@@ -301,8 +301,8 @@ def test_abort_active_removes_what_was_staged(tmp_path):
 # ------------------------------------------------------------- Ctrl-C and locks
 
 
-def _start(args, cwd: Path):
-    env = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}
+def _start(args, cwd: Path, **env_changes):
+    env = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1", **env_changes}
     return subprocess.Popen([sys.executable, "-m", "stickslip_cli", *map(str, args)],
                             cwd=cwd, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
@@ -322,19 +322,22 @@ def _wait_for(proc, marker: str, timeout: float = 300.0) -> list[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("point", ["import", "start", "fit", "figures"])
+@pytest.mark.parametrize("point", ["import", "start", "fit", "figures", "figures helper"])
 def test_ctrl_c_stops_within_a_second_and_leaves_nothing(fixtures_dir, tmp_path, point):
     data, init = _sawtooths(fixtures_dir, tmp_path)
     before = snapshot([*data.iterdir(), init])
     out = tmp_path / "id"
+    # "figures helper": drawn beside a helper process, which shares the command's
+    # stderr, so communicate() below also waits for the helper to be gone.
     proc = _start(["identify", data, "--out", out, "--init", init, "--fix", "Ms=0.0247",
-                   *STEPS, "--force"], tmp_path)
+                   *STEPS, "--force"], tmp_path,
+                  STICKSLIP_FIGURE_HELPER="1" if point == "figures helper" else "0")
     seen = []
     if point == "import":
         time.sleep(0.3)
     else:
         marker = {"start": "recording(s); start", "fit": "hysteresis: step   1",
-                  "figures": "[check]"}[point]
+                  "figures": "[check]", "figures helper": "[check]"}[point]
         seen = _wait_for(proc, marker)
         if point == "start":
             # A second command aimed at the same --out is refused at once.

@@ -191,6 +191,19 @@ def test_identify_figures_show_the_noise_floor_and_explain_the_loop(identified, 
     assert_legends_inside_axes(fig)
 
 
+def test_identify_figures_are_the_same_files_with_a_helper_process(identified, tmp_path):
+    from stickslip_jax.figure_helper import FigureHelper
+    from stickslip_jax.identify.report import write_figures
+
+    alone = write_figures(identified, tmp_path / "alone")
+    with FigureHelper() as helper:
+        shared = write_figures(identified, tmp_path / "shared", helper=helper)
+    assert list(shared) == list(alone) and len(alone) == 9  # 5 overlays and 4 others
+    for key, path in alone.items():
+        assert shared[key] == tmp_path / "shared" / path.name
+        assert shared[key].read_bytes() == path.read_bytes(), key
+
+
 def test_display_psd_puts_white_noise_at_the_one_sided_level_either_way():
     from stickslip_jax.identify.figures import display_psd
 

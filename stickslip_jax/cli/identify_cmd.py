@@ -75,6 +75,7 @@ def identify_command(
     figures into --out."""
     with reported_errors():
         setup_jax()
+        from ..figure_helper import figure_helper
         from ..identify import STEPS, identify
         from ..identify.report import fit_summary, output_paths, write_identification
         from ..model.profiles import lu2015_slc1720
@@ -104,8 +105,11 @@ def identify_command(
             typer.echo(f"note: the PI weights are fitted on {n_pi} thresholds over the "
                        f"recorded voltages (--n-pi), not on the {n_start} of {init}; "
                        f"--keep-thresholds keeps those", err=True)
-        # Locked before the fit, written whole or not at all (stickslip_jax.staging).
-        with staged_folder(out, "identify", force=force) as stage:
+        # Locked before the fit, written whole or not at all (stickslip_jax.staging);
+        # the figures' helper process starts now, so that its start-up overlaps the fit,
+        # and stops before the staged outputs are moved or removed.
+        with (staged_folder(out, "identify", force=force) as stage,
+              figure_helper(enabled=not no_figures) as helper):
             typer.echo(f"{len(recordings)} recording(s); start: "
                        f"{init if init is not None else 'profile lu2015_slc1720'}", err=True)
             try:
@@ -119,7 +123,8 @@ def identify_command(
             if result.undetermined is not None and result.undetermined.blocking:
                 raise fail(result.undetermined.statement(), EXIT_FAILED)
             written = write_identification(result, stage, figures=not no_figures,
-                                           inputs=[r.source for r in recordings if r.source])
+                                           inputs=[r.source for r in recordings if r.source],
+                                           helper=helper)
             summary = fit_summary(result)
     written = {k: out / p.relative_to(stage) for k, p in written.items()}
     print_identification(result, summary, written)

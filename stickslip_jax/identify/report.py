@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..figure_helper import FigureJob, draw_figures
 from ..files import atomic_write_text, check_output_path
 from ..noise import noise_sigma
 from ..params import save_params
@@ -145,10 +146,12 @@ def fit_summary(result) -> dict:
 
 
 def write_identification(result, out_dir: str | Path, *, force: bool = False,
-                         inputs=(), figures: bool = True) -> dict[str, Path]:
+                         inputs=(), figures: bool = True, helper=None) -> dict[str, Path]:
     """Write ``result`` (an :class:`Identification`) into ``out_dir``; returns the paths.
 
-    ``inputs`` are files that must never be written over. A result whose data could
+    ``inputs`` are files that must never be written over; ``helper`` a
+    :class:`~stickslip_jax.figure_helper.FigureHelper` that draws figures beside this
+    process. A result whose data could
     not determine its steps (nothing fitted) is refused with the reason (ValueError).
     """
     blocked = getattr(result, "undetermined", None)
@@ -169,7 +172,8 @@ def write_identification(result, out_dir: str | Path, *, force: bool = False,
     atomic_write_text(fit, json.dumps(fit_summary(result), indent=1) + "\n")
     written["fit"] = fit
     if figures:
-        written.update(write_figures(result, out_dir / "figures", force=force))
+        written.update(write_figures(result, out_dir / "figures", force=force,
+                                     helper=helper))
     return written
 
 
@@ -180,43 +184,42 @@ def _pick(recs, sims, waveform, amplitude=None, frequency=None):
     return sorted(out, key=lambda x: bool(x[0].drive.is_backward))
 
 
-def write_figures(result, fig_dir: Path, *, force: bool = False) -> dict[str, Path]:
+def write_figures(result, fig_dir: Path, *, force: bool = False,
+                  helper=None) -> dict[str, Path]:
     """The figures of the identification issue: an overlay per recording, the step PSD,
     the 20 V/500 Hz and 40 V/50 Hz sawtooth PSDs (Lu 2015 Fig. 11), the hysteresis
     loop, and the step length against amplitude. Figures that lack their recordings
-    are skipped."""
+    are skipped. ``helper``: a :class:`~stickslip_jax.figure_helper.FigureHelper` that
+    draws some of them beside this process (the same files either way)."""
     from ..plots import plot_trace
 
     fig_dir.mkdir(parents=True, exist_ok=True)
     recs = list(result.data.recordings)
-    sims = [result.q_sim[b, : r.n] for b, r in enumerate(recs)]
-    out = {}
+    sims = [np.asarray(result.q_sim[b, : r.n]) for b, r in enumerate(recs)]
+    jobs = []
 
-    def target(name):
-        return check_output_path(fig_dir / name, force=force)
+    def add(key, draw, *args, in_process=False, **kwargs):
+        kwargs["path"] = check_output_path(fig_dir / f"{key}.png", force=force)
+        jobs.append(FigureJob(key, draw, args, kwargs, in_process=in_process))
 
-    for rec, q in zip(recs, sims, strict=True):
+    for b, (rec, q) in enumerate(zip(recs, sims, strict=True)):
         shift = np.mean(rec.position_m - q)  # show the model on the recording's zero
-        out[f"overlay_{rec.name}"] = plot_trace(
-            rec.time_s, rec.voltage_V, q + shift, q_meas_m=rec.position_m,
-            noise_m=noise_sigma(rec),
-            title=f"{rec.name}: NRMSE {100 * float(result.nrmse[recs.index(rec)]):.3f} %",
-            path=target(f"overlay_{rec.name}.png"))
+        add(f"overlay_{rec.name}", plot_trace, rec.time_s, rec.voltage_V, q + shift,
+            q_meas_m=rec.position_m, noise_m=noise_sigma(rec),
+            title=f"{rec.name}: NRMSE {100 * float(result.nrmse[b]):.3f} %")
     steps = _pick(recs, sims, "step")
     if steps:
-        out["step_psd"] = plot_psd_overlay([steps[0][0]], [steps[0][1]],
-                                           title="step response PSD",
-                                           path=target("step_psd.png"))
+        add("step_psd", plot_psd_overlay, [steps[0][0]], [steps[0][1]],
+            title="step response PSD")
     fig11 = [x for a, f in ((20.0, 500.0), (40.0, 50.0))
              for x in _pick(recs, sims, "sawtooth", a, f)[:1]]
     if fig11:
-        out["fig11_psd"] = plot_psd_overlay(
-            [r for r, _ in fig11], [q for _, q in fig11],
-            title="sawtooth responses (Lu 2015 Fig. 11)", path=target("fig11_psd.png"))
+        add("fig11_psd", plot_psd_overlay, [r for r, _ in fig11], [q for _, q in fig11],
+            title="sawtooth responses (Lu 2015 Fig. 11)")
     slow = _pick(recs, sims, "sine")
-    if slow:
-        out["hysteresis_loop"] = plot_hysteresis_loop(result.actuator, slow[0][0], slow[0][1],
-                                                      path=target("hysteresis_loop.png"))
+    if slow:  # it evaluates the model: drawn in this process
+        add("hysteresis_loop", plot_hysteresis_loop, result.actuator, slow[0][0],
+            slow[0][1], in_process=True)
     if _pick(recs, sims, "sawtooth"):
-        out["step_length"] = plot_step_lengths(recs, sims, path=target("step_length.png"))
-    return out
+        add("step_length", plot_step_lengths, recs, sims)
+    return draw_figures(jobs, helper)
