@@ -199,8 +199,8 @@ class FigureHelper:
                 if status != "ok":
                     return
                 done[key] = Path(value)
-        except (OSError, EOFError, ValueError, pickle.UnpicklingError):
-            self.close()  # a reply may be lost: no later job is given to this helper
+        except Exception:  # a broken pipe, a job that would not pickle, a lost reply:
+            self.close()  # no later job goes to this helper; this process draws them
 
 
 def _helper_environment() -> dict[str, str]:

@@ -143,3 +143,13 @@ def test_stop_all_kills_every_helper_at_once():
     assert stop_all() == 0
     for helper in helpers:
         helper.close()  # nothing left to stop
+
+
+def test_a_job_that_cannot_go_to_the_helper_is_drawn_here(tmp_path):
+    t = np.linspace(0.0, 1.0, 50)
+    local = FigureJob("local", lambda path: plot_trace(t, t, 1e-6 * t, path=path),
+                      kwargs={"path": tmp_path / "local.png"})  # not marked in_process
+    with FigureHelper() as helper:
+        paths = draw_figures([local, *trace_jobs(tmp_path, 3)], helper)
+    assert list(paths) == ["local", "trace_0", "trace_1", "trace_2"]
+    assert all(p.is_file() for p in paths.values())
