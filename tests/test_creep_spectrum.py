@@ -112,8 +112,9 @@ def test_the_report_says_and_draws_the_spectrum_found(tmp_path):
     assert form_found("learned_force", params) == ""
     assert form_found("sensor_delay", {"delay": 1e-6}) == ""
     path = tmp_path / "forms.png"
-    creep = SimpleNamespace(name="creep", params=params)
-    delay = SimpleNamespace(name="sensor_delay", params={"delay": 1e-6})
+    creep = SimpleNamespace(name="creep", params=params, param_draws={})
+    delay = SimpleNamespace(name="sensor_delay", params={"delay": 1e-6},
+                            param_draws={})
     assert plot_forms([creep, delay], path) and path.stat().st_size > 5000
     assert not plot_forms([delay], tmp_path / "none.png")
     assert not (tmp_path / "none.png").exists()

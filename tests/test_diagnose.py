@@ -122,6 +122,10 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
     assert m["name"] == "sensor_delay"
     assert m["nrmse_after_percent"] < 0.5 * m["nrmse_before_percent"]
     assert 10e-6 < m["params"]["sensor_delay"] < 20e-6  # the hidden delay is 15 µs
+    # Its 95 % interval from the refit's covariance holds the value and is narrow: a
+    # 15 µs delay over 5 recordings is fixed to well under a microsecond.
+    low, high = m["params_interval_95"]["sensor_delay"]
+    assert low < m["params"]["sensor_delay"] < high and 0 < high - low < 1e-6
     assert {"recording", "regime", "time_s", "band_Hz", "statistic"} <= set(d["mismatch"][0])
     assert isinstance(d["residual_peaks_Hz"], list)
     assert len(d["baseline"]["per_recording"]) == len(recs)

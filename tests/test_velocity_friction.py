@@ -128,5 +128,6 @@ def test_the_report_draws_the_force_found(tmp_path):
     assert form_found("viscous_friction", {"rho2": 0.2}).startswith(
         "friction against sliding velocity: rho2 0.2 N·s/m; force at 0.3 mm/s")
     path = tmp_path / "forms.png"
-    assert plot_forms([SimpleNamespace(name="viscous_friction", params=params)], path)
+    assert plot_forms([SimpleNamespace(name="viscous_friction", params=params,
+                                       param_draws={})], path)
     assert path.stat().st_size > 5000

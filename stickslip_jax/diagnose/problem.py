@@ -5,7 +5,7 @@ every simulation it runs is charged to the work budget (:mod:`.budget`)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import equinox as eqx
 import jax
@@ -21,7 +21,12 @@ from ..identify.sensitivities import (
     perturbed_mask,
     sensor_only_columns,
 )
-from ..identify.solve import ColumnSplitJacobian, LMSettings, solve_least_squares
+from ..identify.solve import (
+    ColumnSplitJacobian,
+    LMSettings,
+    SolveResult,
+    solve_least_squares,
+)
 from ..identify.step_names import dynamics_names, friction_names, without_absent_directions
 from ..identify.steps import JOINT_GN_TOL
 from ..model.actuator import Actuator
@@ -114,6 +119,15 @@ class ProjectedResiduals(eqx.Module):
 
     def __call__(self, theta, args=None):
         return without_span(self.basis, self.inner(theta, args))
+
+
+@dataclass(frozen=True)
+class FitSolve(SolveResult):
+    """A fit's :class:`~stickslip_jax.identify.solve.SolveResult` with the coordinates
+    it was solved in: ``theta`` and ``jacobian`` are over ``pmap``'s θ (what turns a
+    draw of θ into values: :mod:`.form_band`)."""
+
+    pmap: ParameterMap | None = None
 
 
 class FitProgram:
@@ -387,6 +401,8 @@ class Problem:
                                   step_bounds=program.pmap.step_bounds)
         self.budget.charge(solve_work(self.samples, program.simulated_columns, out,
                                       program.factor))
+        out = FitSolve(**{f.name: getattr(out, f.name) for f in fields(out)},
+                       pmap=program.pmap)
         fitted = program.pmap.actuator(np.asarray(out.theta), xp=np)
         self.say(f"[{label}] {out.message}; {out.iterations} steps, {out.wall_s:.1f} s, "
                  f"cost {out.cost_start:.5g} -> {out.cost_end:.5g}")

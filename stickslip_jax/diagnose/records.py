@@ -88,6 +88,9 @@ class RefitOutcome:
     predicts: bool = True
     """It predicts the regimes left out at least as well as the model it extends
     (:func:`~.holdout.predicts_as_well`); True when not checked."""
+    param_draws: dict = field(default_factory=dict)
+    """Draws of the entry's own parameters from the refit's first-order covariance
+    (:func:`~.form_band.parameter_draws`: name → values); empty when not drawn."""
 
 
 def amended(record, **fields):

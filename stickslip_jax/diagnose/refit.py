@@ -21,6 +21,7 @@ from ..model.extensions import LEARNED_FEATURES
 from ..significance import per_recording_chi2
 from .budget import REIDENTIFY_EVALUATIONS
 from .catalogue import Candidate
+from .form_band import parameter_draws
 from .holdout import held_out_cost, predicts_as_well
 from .policy import DEFAULT_POLICY, Policy
 from .problem import OverBudget, Problem
@@ -145,11 +146,22 @@ def record_refit(setup: RefitSetup, at: RoundStart, res: CandidateResult,
         material=sig.material(at.rss, rss_new),
         removed_nm=sig.nm(at.rss - rss_new),
         removed_noise_share=(at.rss - rss_new) / n_obs,
-        held_out=held_out, predicts=predicts)
+        held_out=held_out, predicts=predicts,
+        param_draws=_draws(out, specs, rss_new))
     res.status = CandidateStatus.REFITTED
     res.wall_s += time.perf_counter() - t0
     # Not converged: its ΔBIC is an upper bound (more steps could only lower it).
     res.note = "" if out.converged else f"refit {out.message}"
+
+
+def _draws(out, specs: dict, rss: float) -> dict:
+    """Draws of the entry's parameters (``specs``) from the refit ``out``'s covariance
+    (:func:`~.form_band.parameter_draws`), for the report's bands only; none where the
+    fit kept no coordinates or Jacobian."""
+    pmap = getattr(out, "pmap", None)
+    if pmap is None or out.jacobian is None:
+        return {}
+    return parameter_draws(pmap, out.theta, out.jacobian, list(specs), rss=rss)
 
 
 def judge_plausibility(res: CandidateResult, cand: Candidate, say) -> None:

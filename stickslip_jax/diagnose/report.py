@@ -10,8 +10,9 @@ import numpy as np
 
 from ..files import atomic_write_text, check_output_path
 from ..identify.residuals import periodogram_psd
-from ..plots import subplots
+from ..plots import save_figure, subplots
 from .catalogue import NAMES, candidate
+from .form_band import intervals
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
 from .records import RefitOutcome, SizingOutcome
@@ -177,7 +178,8 @@ def diagnosis_dict(d: Diagnosis) -> dict:
     """The content of ``diagnosis.json``."""
     missing = [{"name": c.name, "partial": c.partial, "summary": named_line(c),
                 "evidence": _evidence(c), "form": form_found(c.name, c.params),
-                "params": c.params, "nrmse_before_percent": _percent(c.nrmse_before),
+                "params": c.params, "params_interval_95": intervals(c.param_draws),
+                "nrmse_before_percent": _percent(c.nrmse_before),
                 "nrmse_after_percent": _percent(c.nrmse_after),
                 "criterion_delta": c.criterion_delta}
                for c in d.accepted]
@@ -299,7 +301,10 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
         lines += ["| name | NRMSE before | NRMSE after | removed [nm RMS] | ΔBIC | "
                   "parameters |", "|---|---|---|---|---|---|"]
         for m in content["missing_physics"]:
-            params = ", ".join(f"{k}={v:.4g}" for k, v in m["params"].items())
+            spread = m.get("params_interval_95") or {}
+            params = ", ".join(f"{k}={v:.4g}" + (f" [{spread[k][0]:.3g}, {spread[k][1]:.3g}]"
+                                                  if k in spread else "")
+                               for k, v in m["params"].items())
             removed = m["evidence"].get("removed_nm")
             removed = "" if removed is None else f"{removed:.3g}"
             name = m["name"] + (" (partial)" if m.get("partial") else "")
@@ -379,18 +384,19 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
 
 def plot_forms(accepted, path) -> bool:
     """The form each accepted entry's refit found (:meth:`~.catalogue.base.
-    CatalogueEntry.plot_form`: the creep spectrum, ...), one panel each; False, and
-    nothing written, when none of them has a figure."""
+    CatalogueEntry.plot_form`: the creep spectrum, ...), with the 95 % band of its
+    refit's errors where the form draws one (:mod:`.form_band`), one panel each;
+    False, and nothing written, when none of them has a figure."""
     fig, axes = subplots(1, len(accepted), figsize=(4.2 * len(accepted), 3.4),
                          squeeze=False)
-    drawn = [candidate(c.name).plot_form(ax, c.params)
+    drawn = [candidate(c.name).plot_form(ax, c.params, draws=c.param_draws)
              for c, ax in zip(accepted, axes[0], strict=True)]
     for ax, done in zip(axes[0], drawn, strict=True):
         if not done:
             ax.set_visible(False)
     if any(drawn):
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        save_figure(fig, path)
     return any(drawn)
 
 

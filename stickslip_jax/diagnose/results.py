@@ -163,6 +163,7 @@ class CandidateResult:
     removed_noise_share = _from_refit("removed_noise_share")
     held_out = _from_refit("held_out")
     predicts = _from_refit("predicts")
+    param_draws = _from_refit("param_draws")
 
     @property
     def size_free_extrapolated(self) -> bool:

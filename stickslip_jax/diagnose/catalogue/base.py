@@ -106,9 +106,11 @@ class CatalogueEntry(abc.ABC):
         default) when the parameters say it themselves."""
         return ""
 
-    def plot_form(self, ax, params: dict[str, float]) -> bool:
-        """Draw the form the refit found (its refitted ``params``) on the axes ``ax``;
-        False (the default) when the entry has no figure of it."""
+    def plot_form(self, ax, params: dict[str, float], draws=None) -> bool:
+        """Draw the form the refit found (its refitted ``params``) on the axes ``ax``,
+        with the band of ``draws`` (:func:`~..form_band.parameter_draws`: its own
+        parameters drawn from the refit's covariance) where the form has a curve to
+        band; False (the default) when the entry has no figure of it."""
         return False
 
     def needs(self, recordings: Sequence) -> str | None:

@@ -17,6 +17,7 @@ import numpy as np
 
 from ...identify.parameters import ParameterSpec
 from ...model.extensions import Creep, CreepSpectrum
+from ..form_band import band
 from .base import CatalogueEntry
 from .slots import carry_extensions, ext, first_order_probes
 
@@ -76,11 +77,16 @@ class CreepEntry(CatalogueEntry):
     def carry(self, init, fitted):
         return carry_extensions(init, fitted)
 
-    def plot_form(self, ax, params):
+    def plot_form(self, ax, params, draws=None):
         weights = _weights(params)
         taus_ms = np.asarray(SPECTRUM_TAUS) * 1e3
         ax.vlines(taus_ms, 0.0, weights * 1e12, color="tab:blue", lw=3)
         ax.plot(taus_ms, weights * 1e12, "o", color="tab:blue", ms=4)
+        spread = band(_weights, params, draws)
+        if spread is not None:  # each weight's 95 % interval, beside its bar
+            ax.vlines(taus_ms * 1.12, spread[0] * 1e12, spread[1] * 1e12, color="0.35",
+                      lw=1, label="95 % interval (the refit's errors)")
+            ax.legend(fontsize=7)
         ax.set_xscale("log")
         ax.set_xlabel("time constant τ [ms]")
         ax.set_ylabel("weight [pm/V]")

@@ -17,6 +17,7 @@ from ...model.extensions import (
     SlewLimitedInput,
 )
 from ...model.stages import IdentityInput
+from ..form_band import band
 from .base import CatalogueEntry, Probe
 from .slots import carry_input_stage
 
@@ -230,15 +231,21 @@ class DriveBandwidthEntry(CatalogueEntry):
                 f"{p:.3g}: at a lag of S·τ it slews at {100 * at_corner:.0f} % of S (a tanh "
                 f"76 %, a hard clip 100 %)")
 
-    def plot_form(self, ax, params):
-        """The refined drive filter's gain against frequency (:func:`_response`)."""
+    def plot_form(self, ax, params, draws=None):
+        """The refined drive filter's gain against frequency (:func:`_response`), with
+        its 95 % band (``draws``)."""
         if "drive_tau2" not in params:
             return False
         f = np.geomspace(10.0, 1e7, 600)
+        spread = band(lambda p: np.abs(_response(p, f)), params, draws)
+        if spread is not None:
+            ax.fill_between(f, *spread, color="tab:blue", alpha=0.2, lw=0,
+                            label="95 % band (the refit's errors)")
         ax.loglog(f, np.abs(_response(params, f)), color="tab:blue")
         f3 = _half_power_hz(params)
         if np.isfinite(f3):
             ax.axvline(f3, color="0.5", linestyle=":", label=f"half power {f3 / 1e3:.3g} kHz")
+        if np.isfinite(f3) or spread is not None:
             ax.legend(fontsize=7)
         ax.set_xlabel("frequency [Hz]")
         ax.set_ylabel("piezo voltage per command [-]")

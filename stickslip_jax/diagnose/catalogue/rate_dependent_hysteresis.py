@@ -89,7 +89,7 @@ class RateDependentHysteresisEntry(CatalogueEntry):
                     f"{x * 1e9:.3g} nm at {d:g} V" for d, x in zip(at, lag, strict=True))
                 + " of voltage lag")
 
-    def plot_form(self, ax, params):
+    def plot_form(self, ax, params, draws=None):
         form = self._form(params)
         d = np.linspace(0.0, 40.0, 300)
         ax.plot(d, np.asarray(form.lag(d)) * 1e9, color="tab:blue", label="lag found")

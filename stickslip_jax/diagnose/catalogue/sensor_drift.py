@@ -108,7 +108,7 @@ class SensorDriftEntry(CatalogueEntry):
                 f"; {end * 1e9:.3g} nm at the end of the longest recording")
         return said
 
-    def plot_form(self, ax, params):
+    def plot_form(self, ax, params, draws=None):
         times, amps = _found(params)
         if not times.size:
             return False

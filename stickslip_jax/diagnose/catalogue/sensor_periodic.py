@@ -145,7 +145,7 @@ class SensorPeriodicEntry(CatalogueEntry):
         return (f"interferometer periodic error: {parts}; "
                 f"{np.ptp(curve) * 1e9:.3g} nm peak to peak over a fringe")
 
-    def plot_form(self, ax, params):
+    def plot_form(self, ax, params, draws=None):
         coef = _coefficients(params)
         if not coef.size:
             return False

@@ -121,7 +121,7 @@ class StructuralModeEntry(CatalogueEntry):
     def carry(self, init, fitted):
         return carry_extensions(init, fitted)
 
-    def plot_form(self, ax, params: dict[str, float]) -> bool:
+    def plot_form(self, ax, params: dict[str, float], draws=None) -> bool:
         """Each mode's response [nm/N] to each place it is excited from, against the
         frequency: ``|c| / |1 − (f/f0)² + 2iζ·f/f0|``."""
         modes = [m for m in bank(params)

@@ -43,5 +43,5 @@ class ViscousFrictionEntry(CatalogueEntry):
     def describe(self, params):
         return FORM.describe(params, "friction against sliding velocity")
 
-    def plot_form(self, ax, params):
-        return FORM.plot(ax, params, "friction against sliding velocity")
+    def plot_form(self, ax, params, draws=None):
+        return FORM.plot(ax, params, "friction against sliding velocity", draws)
