@@ -93,3 +93,33 @@ def test_the_force_found_is_drawn_with_its_band(tmp_path):
     assert plot_forms([SimpleNamespace(name="viscous_friction", params=params,
                                        param_draws=draws)], out)
     assert out.stat().st_size > 5000
+
+
+def _example_forms():
+    """(entry, refitted params) of each form drawn with a band."""
+    from stickslip_jax.diagnose.catalogue.creep import SPECTRUM_TAUS, weight_name
+    from stickslip_jax.diagnose.catalogue.rate_dependent_hysteresis import SAT_VOLTS, sat_name
+    from stickslip_jax.diagnose.catalogue.sensor_drift import amplitude_name
+
+    rate = {"rate_gain": 1e-10, "rate_tau": 2e-4} | {sat_name(v): 1e-10 for v in SAT_VOLTS}
+    return [
+        ("viscous_friction", {"rho2": 0.05, SLOPE: 2.0}),
+        ("drive_bandwidth", {"drive_tau": 2e-6, "drive_mix": 1.0, "drive_tau2": 0.5e-6,
+                             "drive_mix2": 0.1}),
+        ("creep", {weight_name(t): 1e-10 for t in SPECTRUM_TAUS}),
+        ("sensor_drift", {"sensor_drift": 1e-7, amplitude_name(0.01): 2e-8}),
+        ("rate_dependent_hysteresis", rate),
+        ("sensor_periodic", {"periodic_cos_1": 3e-9, "periodic_sin_1": 4e-9}),
+    ]
+
+
+@pytest.mark.parametrize(("name", "params"), _example_forms(), ids=lambda x: str(x)[:20])
+def test_each_banded_form_draws_the_band_of_its_draws(name, params):
+    draws = {k: v * np.linspace(0.8, 1.2, 21) for k, v in params.items()}
+    bare, ax = subplots()
+    assert candidate(name).plot_form(ax, params)
+    without = len(ax.collections)
+    banded, ax = subplots()
+    assert candidate(name).plot_form(ax, params, draws=draws)
+    assert len(ax.collections) == without + 1
+    assert any("95 %" in t.get_text() for t in ax.get_legend().get_texts())

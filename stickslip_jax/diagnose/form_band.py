@@ -88,3 +88,17 @@ def intervals(draws: dict[str, np.ndarray] | None) -> dict[str, list[float]]:
     """``{name: [low, high]}``: each drawn parameter's :data:`BAND_PERCENTILES`."""
     return {n: [float(x) for x in np.percentile(v, BAND_PERCENTILES)]
             for n, v in (draws or {}).items()}
+
+
+def draw_band(ax, x, curve: Callable[[dict], np.ndarray], params: dict[str, float],
+              draws: dict[str, np.ndarray] | None, *, scale: float = 1.0,
+              colour: str = "tab:blue") -> bool:
+    """Shade on ``ax`` the :func:`band` of ``curve`` over ``x`` (both axes' values times
+    ``scale`` on y: the figure's units), labelled; False, and nothing drawn, without
+    draws."""
+    spread = band(curve, params, draws)
+    if spread is None:
+        return False
+    ax.fill_between(x, spread[0] * scale, spread[1] * scale, color=colour, alpha=0.2, lw=0,
+                    label="95 % band (the refit's errors)")
+    return True

@@ -17,7 +17,7 @@ from ...model.extensions import (
     SlewLimitedInput,
 )
 from ...model.stages import IdentityInput
-from ..form_band import band
+from ..form_band import draw_band
 from .base import CatalogueEntry, Probe
 from .slots import carry_input_stage
 
@@ -237,15 +237,12 @@ class DriveBandwidthEntry(CatalogueEntry):
         if "drive_tau2" not in params:
             return False
         f = np.geomspace(10.0, 1e7, 600)
-        spread = band(lambda p: np.abs(_response(p, f)), params, draws)
-        if spread is not None:
-            ax.fill_between(f, *spread, color="tab:blue", alpha=0.2, lw=0,
-                            label="95 % band (the refit's errors)")
+        banded = draw_band(ax, f, lambda p: np.abs(_response(p, f)), params, draws)
         ax.loglog(f, np.abs(_response(params, f)), color="tab:blue")
         f3 = _half_power_hz(params)
         if np.isfinite(f3):
             ax.axvline(f3, color="0.5", linestyle=":", label=f"half power {f3 / 1e3:.3g} kHz")
-        if np.isfinite(f3) or spread is not None:
+        if np.isfinite(f3) or banded:
             ax.legend(fontsize=7)
         ax.set_xlabel("frequency [Hz]")
         ax.set_ylabel("piezo voltage per command [-]")

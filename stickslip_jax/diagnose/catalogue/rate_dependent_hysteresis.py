@@ -18,6 +18,7 @@ import numpy as np
 
 from ...identify.parameters import ParameterSpec
 from ...model.extensions import RateDependentStroke, RateLagForm
+from ..form_band import draw_band
 from .base import CatalogueEntry
 from .slots import carry_extensions, ext, first_order_probes
 
@@ -92,6 +93,8 @@ class RateDependentHysteresisEntry(CatalogueEntry):
     def plot_form(self, ax, params, draws=None):
         form = self._form(params)
         d = np.linspace(0.0, 40.0, 300)
+        draw_band(ax, d, lambda p: np.asarray(self._form(p).lag(d)), params, draws,
+                  scale=1e9)
         ax.plot(d, np.asarray(form.lag(d)) * 1e9, color="tab:blue", label="lag found")
         ax.plot(d, params.get("rate_gain", 0.0) * d * 1e9, color="0.5", ls="--", lw=0.8,
                 label="linear term")

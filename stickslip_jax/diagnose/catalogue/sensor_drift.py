@@ -20,6 +20,7 @@ import equinox as eqx
 import numpy as np
 
 from ...identify.parameters import ParameterSpec
+from ..form_band import draw_band
 from .base import CatalogueEntry, Probe
 from .slots import carry_output_map, sensor_attr, with_sensor
 
@@ -115,9 +116,14 @@ class SensorDriftEntry(CatalogueEntry):
         longest = times[-1] / SLOWEST_MULTIPLE
         t = np.linspace(0.0, longest, 300)
         rate = params.get("sensor_drift", 0.0)
-        total = rate * t + np.sum(amps[:, None] * (1.0 - np.exp(-t[None] / times[:, None])),
-                                  axis=0)
-        ax.plot(t * 1e3, total * 1e9, color="tab:blue", label="drift found")
+
+        def total(p):
+            found_times, found = _found(p)
+            return p.get("sensor_drift", 0.0) * t + np.sum(
+                found[:, None] * (1.0 - np.exp(-t[None] / found_times[:, None])), axis=0)
+
+        draw_band(ax, t * 1e3, total, params, draws, scale=1e9)
+        ax.plot(t * 1e3, total(params) * 1e9, color="tab:blue", label="drift found")
         ax.plot(t * 1e3, rate * t * 1e9, color="0.5", ls="--", lw=0.8, label="linear term")
         ax.set_xlabel("time from the recording's start [ms]")
         ax.set_ylabel("sensor drift [nm]")

@@ -29,6 +29,7 @@ import numpy as np
 from ...identify.parameters import ParameterSpec
 from ...model.actuator import Actuator
 from ...model.extensions import HENE_FRINGE_M
+from ..form_band import draw_band
 from .base import CatalogueEntry, Probe
 from .slots import carry_output_map, with_sensor
 
@@ -150,6 +151,8 @@ class SensorPeriodicEntry(CatalogueEntry):
         if not coef.size:
             return False
         p = np.linspace(0.0, 2.0 * HENE_FRINGE_M, 400)
+        draw_band(ax, p * 1e9, lambda q: _error(_coefficients(q), p), params, draws,
+                  scale=1e9)
         ax.plot(p * 1e9, _error(coef, p) * 1e9, color="tab:blue", label="error found")
         ax.plot(p * 1e9, _error(coef[:1], p) * 1e9, color="0.5", ls="--", lw=0.8,
                 label="first harmonic")

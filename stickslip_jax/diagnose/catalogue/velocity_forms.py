@@ -24,7 +24,7 @@ import numpy as np
 from ...identify.parameters import ParameterSpec
 from ...model.actuator import Actuator
 from ...model.extensions import SaturatingViscosity, first_slope
-from ..form_band import band
+from ..form_band import draw_band
 from .base import Probe
 from .slots import damping_attach, damping_probes, ext
 
@@ -113,12 +113,9 @@ class VelocityForm:
 
     def plot(self, ax, params: dict[str, float], what: str, draws=None) -> bool:
         """The force found against the velocity, with its 95 % band (``draws``:
-        :func:`~..form_band.band`), beside the coefficient alone."""
+        :func:`~..form_band.draw_band`), beside the coefficient alone."""
         v = np.linspace(0.0, 2.0 * self.speeds[-1] / 3.0, 200)
-        spread = band(lambda p: self.force_curve(p, v), params, draws)
-        if spread is not None:
-            ax.fill_between(v * 1e3, spread[0] * 1e3, spread[1] * 1e3, color="tab:blue",
-                            alpha=0.2, lw=0, label="95 % band (the refit's errors)")
+        draw_band(ax, v * 1e3, lambda p: self.force_curve(p, v), params, draws, scale=1e3)
         ax.plot(v * 1e3, self.force_curve(params, v) * 1e3, color="tab:blue")
         ax.plot(v * 1e3, params.get(self.coefficient, 0.0) * v * 1e3, color="0.5", ls="--",
                 lw=0.8, label=f"{self.coefficient} alone")
