@@ -93,3 +93,13 @@ def test_a_weight_at_its_bound_converges_within_the_domain():
     least = float(at_zero[0])
     assert bounded.cost_end - least < 0.01 * sigma2 < capped.cost_end - least
     np.testing.assert_allclose(bounded.theta[:2], coef, atol=5e-4)  # a standard error
+
+
+def test_a_jacobian_whose_normal_matrix_overflows_is_never_called_converged():
+    j = np.array([[1e200, 1.0], [2.0, 1e-3], [0.0, 5.0]])  # finite, JᵀJ is not
+    r = np.ones(3)
+    assert gauss_newton_drop(r, j) == np.inf
+    assert gauss_newton_drop(r, j, bounds=(np.full(2, -1.0), np.full(2, np.inf))) == np.inf
+    r_huge = np.array([1e300, 1e300, 1e300])
+    assert gauss_newton_drop(r_huge, np.array([[1e10], [1e10], [1e10]])) == np.inf  # Jᵀr
+    assert gauss_newton_drop(np.ones(2), np.eye(2)) == pytest.approx(2.0)  # (ordinary)

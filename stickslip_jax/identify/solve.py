@@ -329,7 +329,14 @@ class LevenbergMarquardtSteps:
         if self.trying_bound:
             self.y_eval = self.y + bound_step
             return accept
-        step = self._gauss_newton_step() if self.trying_gauss_newton else self._damped_step()
+        step = None
+        if self.trying_gauss_newton:
+            try:
+                step = self._gauss_newton_step()
+            except (np.linalg.LinAlgError, ValueError):  # the SVD failed: no trial here
+                self.trying_gauss_newton = False
+        if step is None:
+            step = self._damped_step()
         self.y_eval = self.y + (-step)
         return accept
 
@@ -429,7 +436,8 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     first order: with residual r (N,) and Jacobian J (N, p), δ = −(JᵀJ)⁺Jᵀr lowers it by
     Δ = gᵀ(JᵀJ)⁺g (g = Jᵀr). Directions whose singular value is below ``rcond`` times
     the largest (undetermined ones) are left out. [units of rᵀr]; 0 when ``jac`` is
-    not finite.
+    not finite; infinite where JᵀJ or Jᵀr overflows or its eigenvalues do not converge
+    (a point the fit must not call converged).
 
     ``bounds``: ``(lo, hi)`` (p,), the steps the parameters' domains allow to first order
     (:meth:`~.parameters.ParameterMap.step_bounds`, in the coordinates of ``jac``). A
@@ -443,9 +451,17 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     j = np.asarray(jac, dtype=float)
     if not np.all(np.isfinite(j)):
         return 0.0
-    h = j.T @ j
-    g = j.T @ r
-    w, v = np.linalg.eigh(h)
+    with np.errstate(over="ignore", invalid="ignore"):
+        h = j.T @ j
+        g = j.T @ r
+    try:
+        if not (np.all(np.isfinite(h)) and np.all(np.isfinite(g))):
+            raise np.linalg.LinAlgError("JᵀJ or Jᵀr overflows")
+        w, v = np.linalg.eigh(h)
+    except np.linalg.LinAlgError:
+        # A Jacobian so large its normal matrix overflows, or whose eigenvalues do not
+        # converge: no step to measure, so no convergence is claimed.
+        return np.inf
     keep = w > (rcond**2) * max(float(w[-1]), 1e-300)
     gv = v.T @ g
     drop = float(np.sum(gv[keep] ** 2 / w[keep]))
