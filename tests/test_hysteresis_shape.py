@@ -63,7 +63,7 @@ def test_gauss_newton_drop_is_what_least_squares_removes():
     beta = np.linalg.lstsq(x, -r, rcond=None)[0]
     after = r + x @ beta
     assert gauss_newton_drop(r, x) == pytest.approx(r @ r - after @ after, rel=1e-10)
-    assert gauss_newton_drop(r, np.full((200, 4), np.nan)) == 0.0
+    assert gauss_newton_drop(r, np.full((200, 4), np.nan)) == np.inf
 
 
 # ---- the loop's shape after an accepted entry ------------------------------------------

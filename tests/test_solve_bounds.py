@@ -9,7 +9,11 @@ import numpy as np
 import pytest
 
 from stickslip_jax.identify.parameters import FreeParameter
-from stickslip_jax.identify.solve import gauss_newton_drop, solve_least_squares
+from stickslip_jax.identify.solve import (
+    gauss_newton_distance,
+    gauss_newton_drop,
+    solve_least_squares,
+)
 
 
 @pytest.mark.parametrize("kind, start, floor, theta", [
@@ -103,3 +107,19 @@ def test_a_jacobian_whose_normal_matrix_overflows_is_never_called_converged():
     r_huge = np.array([1e300, 1e300, 1e300])
     assert gauss_newton_drop(r_huge, np.array([[1e10], [1e10], [1e10]])) == np.inf  # Jᵀr
     assert gauss_newton_drop(np.ones(2), np.eye(2)) == pytest.approx(2.0)  # (ordinary)
+
+
+def test_a_jacobian_that_is_not_finite_is_never_called_converged():
+    # A NaN or infinite column (a derivative through a non-smooth point) measures no
+    # step: the distance must not read as 0, which the fit would take for converged.
+    r = np.array([1.0, -0.5, 0.25, 0.1])
+    j = np.array([[1.0, np.nan], [0.0, 1.0], [1.0, 1.0], [2.0, 0.0]])
+    assert gauss_newton_drop(r, j) == np.inf
+    assert gauss_newton_distance(r, j) == np.inf
+    assert gauss_newton_distance(r, np.where(np.isnan(j), np.inf, j)) == np.inf
+    assert gauss_newton_distance(np.array([np.nan, 0, 0, 0]), np.ones((4, 2))) == np.inf
+    assert gauss_newton_distance(np.zeros(4), np.ones((4, 2))) == 0.0  # an exact fit
+    ok = np.column_stack([np.ones(4), np.arange(4.0)])
+    # (ordinary) drop / σ̂², σ̂² = rᵀr/(N − p)
+    assert gauss_newton_distance(r, ok) == pytest.approx(
+        gauss_newton_drop(r, ok) / (r @ r / 2), rel=1e-12)

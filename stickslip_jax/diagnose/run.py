@@ -240,7 +240,9 @@ def _refined_hysteresis(problem: Problem, act: Actuator, rss: float,
     program = _baseline_program(problem, start)
     r, jac = (np.asarray(a) for a in program(program.pmap.zeros()))
     problem.budget.charge(problem.evaluation_work(start, program.simulated_columns))
-    predicted = float(r @ r) - gauss_newton_drop(r, jac)
+    drop = gauss_newton_drop(r, jac)
+    # No measurable step (a Jacobian not finite or overflowing) predicts no fall.
+    predicted = float(r @ r) - (drop if np.isfinite(drop) else 0.0)
     kept = None
     whose = "the model" if after else "the baseline"
     if predicted > n_obs + significance.tolerance_rss:

@@ -435,9 +435,10 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     """What the full Gauss-Newton step from a point lowers the cost ``rᵀr`` by, to
     first order: with residual r (N,) and Jacobian J (N, p), δ = −(JᵀJ)⁺Jᵀr lowers it by
     Δ = gᵀ(JᵀJ)⁺g (g = Jᵀr). Directions whose singular value is below ``rcond`` times
-    the largest (undetermined ones) are left out. [units of rᵀr]; 0 when ``jac`` is
-    not finite; infinite where JᵀJ or Jᵀr overflows or its eigenvalues do not converge
-    (a point the fit must not call converged).
+    the largest (undetermined ones) are left out. [units of rᵀr]; infinite where no
+    step can be measured: ``jac`` not finite, JᵀJ or Jᵀr overflowing, or eigenvalues
+    that do not converge (a point the fit must not call converged; a caller that
+    predicts from the drop treats it as no prediction).
 
     ``bounds``: ``(lo, hi)`` (p,), the steps the parameters' domains allow to first order
     (:meth:`~.parameters.ParameterMap.step_bounds`, in the coordinates of ``jac``). A
@@ -450,7 +451,7 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     r = np.asarray(residual, dtype=float)
     j = np.asarray(jac, dtype=float)
     if not np.all(np.isfinite(j)):
-        return 0.0
+        return np.inf
     with np.errstate(over="ignore", invalid="ignore"):
         h = j.T @ j
         g = j.T @ r
@@ -509,13 +510,16 @@ def gauss_newton_distance(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     """Squared length of the full Gauss-Newton step from a point, in standard errors:
     its cost drop (:func:`gauss_newton_drop`, within ``bounds`` when given) divided by
     σ̂² = rᵀr/(N − p), the step's Mahalanobis length squared under the covariance
-    σ̂²(JᵀJ)⁺. [-]
+    σ̂²(JᵀJ)⁺. [-]; 0 at an exact fit (r = 0), infinite where the residual or the
+    Jacobian is not finite (no convergence is claimed where no step can be measured).
     """
     r = np.asarray(residual, dtype=float)
     n, p = np.shape(jac)
     sigma2 = float(r @ r) / max(n - p, 1)
-    if not (np.isfinite(sigma2) and sigma2 > 0 and np.all(np.isfinite(jac))):
-        return float("inf") if not np.isfinite(sigma2) else 0.0
+    if not (np.isfinite(sigma2) and np.all(np.isfinite(jac))):
+        return float("inf")
+    if sigma2 <= 0:
+        return 0.0
     return gauss_newton_drop(r, jac, rcond=rcond, bounds=bounds) / sigma2
 
 
