@@ -71,9 +71,10 @@ def _send(stream, message) -> None:
 
 
 def serve() -> None:
-    """The helper process: draw each job it is sent on stdin and report it on stdout
-    (``("ok", key, path)`` or ``("error", key, traceback)``), until None or the end of
-    its input (its parent is gone)."""
+    """The helper process: draw each job it is sent on stdin (a :class:`FigureJob`
+    pickled into bytes) and report it on stdout (``("ok", key, path)`` or
+    ``("error", key, traceback)``, key None when the job would not unpickle), until None
+    or the end of its input (its parent is gone)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which stops it
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything a library prints goes to stderr, not into the replies
@@ -93,10 +94,16 @@ def serve() -> None:
         if isinstance(job, dict):  # the parent's matplotlib settings, before its jobs
             _apply_settings(job)
             continue
+        key = None
         try:
-            reply = ("ok", job.key, str(job.run()))
+            # Each job comes pickled inside its message, so that one this process cannot
+            # unpickle (its function not importable here) is reported like a failed draw
+            # and leaves the stream in step for the next.
+            job = pickle.loads(job)
+            key = job.key
+            reply = ("ok", key, str(job.run()))
         except Exception:  # reported; the parent draws it again and raises there
-            reply = ("error", job.key, traceback.format_exc())
+            reply = ("error", key, traceback.format_exc())
         try:
             _send(replies, reply)
         except OSError:  # the parent is gone
@@ -194,7 +201,7 @@ class FigureHelper:
         try:
             _send(process.stdin, _settings())
             while (i := take()) < len(jobs):
-                _send(process.stdin, jobs[i])
+                _send(process.stdin, pickle.dumps(jobs[i], protocol=pickle.HIGHEST_PROTOCOL))
                 status, key, value = pickle.load(process.stdout)
                 if status != "ok":
                     return

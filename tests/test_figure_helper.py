@@ -153,3 +153,26 @@ def test_a_job_that_cannot_go_to_the_helper_is_drawn_here(tmp_path):
         paths = draw_figures([local, *trace_jobs(tmp_path, 3)], helper)
     assert list(paths) == ["local", "trace_0", "trace_1", "trace_2"]
     assert all(p.is_file() for p in paths.values())
+
+
+def plot_from_this_test_module(path):
+    """A module-level job the helper cannot unpickle: it imports the package, not the
+    test modules."""
+    t = np.linspace(0.0, 1.0, 50)
+    return plot_trace(t, t, 1e-6 * t, path=path)
+
+
+def test_a_job_the_helper_cannot_unpickle_is_reported_and_the_helper_goes_on(tmp_path, capfd):
+    job = FigureJob("here_only", plot_from_this_test_module,
+                    kwargs={"path": tmp_path / "here_only.png"})
+    with FigureHelper() as helper:
+        done, taken = {}, iter(range(3))
+        helper.feed([job], lambda: next(taken), done)
+        assert done == {}  # reported, not drawn there
+        good = trace_jobs(tmp_path, 1)
+        taken = iter(range(3))
+        helper.feed(good, lambda: next(taken), done)  # the same helper, still in step
+        assert list(done) == ["trace_0"] and done["trace_0"].is_file()
+        paths = draw_figures([job, *trace_jobs(tmp_path, 2)], helper)
+    assert paths["here_only"].is_file()
+    assert "Traceback" not in capfd.readouterr().err  # the helper did not die loudly
