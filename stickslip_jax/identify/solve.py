@@ -261,6 +261,7 @@ class LevenbergMarquardtSteps:
         self.rtol, self.atol = float(rtol), float(atol)
         self.residual = None
         self.jac = None
+        self._triangle = None
         self.accepted = 0
         self.terminate = False
         self.predicted_fall = np.inf
@@ -318,6 +319,7 @@ class LevenbergMarquardtSteps:
             residual = np.zeros_like(value) if self.residual is None else self.residual
             self.terminate = self._cauchy(self.y_eval - self.y, value, value - residual)
             self.y, self.residual, self.jac = self.y_eval, value, np.asarray(jac, dtype=float)
+            self._triangle = None  # the new point's, made when a step first needs it
             self.accepted += 1
         else:
             self.terminate = False
@@ -364,7 +366,8 @@ class LevenbergMarquardtSteps:
             return None
         # Which coordinates the data put at their bounds: the undamped step's (a damped
         # step shortens a shrinking weight's move with its column, and never meets it).
-        delta = bounded_gauss_newton_step(self.jac, self.residual, lo, hi)
+        tri, c = self.triangle
+        delta = bounded_gauss_newton_step(tri, c, lo, hi)
         with np.errstate(invalid="ignore"):  # (an infinite bound is never met)
             bound = np.where(delta <= lo + 1e-9 * np.abs(lo), lo,
                              np.where(delta >= hi - 1e-9 * np.abs(hi), hi, np.nan))
@@ -383,8 +386,9 @@ class LevenbergMarquardtSteps:
         free = ~met
         delta = np.zeros_like(delta)
         if free.any():
-            delta[free] = bounded_gauss_newton_step(self.jac[:, free], at_bound, -np.inf,
-                                                    np.inf, self._damping)
+            # The same least squares in the triangle's rows: Qᵀ(r + J_m·b) = c + R_m·b.
+            delta[free] = bounded_gauss_newton_step(tri[:, free], c + tri[:, met] @ bound[met],
+                                                    -np.inf, np.inf, self._damping)
         rtr = float(np.sum(self.residual**2))
         model = at_bound + self.jac[:, free] @ delta[free]
         self._bound_predicted = 0.5 * (float(np.sum(model**2)) - rtr)
@@ -398,8 +402,24 @@ class LevenbergMarquardtSteps:
         delta[met] = bound[met] * np.where(reach > 1.0, reach, 1.0)
         return delta
 
+    @property
+    def triangle(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(R, c)``: the accepted point's Jacobian J = QR (R: k × k, upper triangular)
+        and its residual in Q's columns, c = Qᵀr. Every step from the point solves a
+        least-squares problem in J and r whose minimiser is the same in R and c
+        (``|r + Jδ|² = |c + Rδ|² + |r|² − |c|²``), so the N-row factorisation is made
+        once per accepted point, not once per step tried from it: on a diagnosis's
+        fits, where most steps are rejected, those factorisations of the whole Jacobian
+        were a third of the run."""
+        if self._triangle is None:
+            q, tri = np.linalg.qr(self.jac)
+            self._triangle = (tri, q.T @ self.residual)
+        return self._triangle
+
     def _gauss_newton_step(self) -> np.ndarray:
-        return np.linalg.lstsq(self.jac, self.residual, rcond=GAUSS_NEWTON_RCOND)[0]
+        # R's singular values are J's, so the same directions are left out.
+        tri, c = self.triangle
+        return np.linalg.lstsq(tri, c, rcond=GAUSS_NEWTON_RCOND)[0]
 
     @property
     def _damping(self) -> float:
@@ -409,10 +429,11 @@ class LevenbergMarquardtSteps:
 
     def _damped_step(self) -> np.ndarray:
         lm = self._damping
-        k = self.y.size
-        a = np.concatenate([self.jac, np.sqrt(lm) * np.eye(k)])
+        tri, c = self.triangle
+        k = tri.shape[1]
+        a = np.concatenate([tri, np.sqrt(lm) * np.eye(k)])
         q, r = np.linalg.qr(a)
-        return solve_triangular(r, q.T @ np.concatenate([self.residual, np.zeros(k)]),
+        return solve_triangular(r, q.T @ np.concatenate([c, np.zeros(k)]),
                                 check_finite=False)
 
     def _cauchy(self, y_diff, f, f_diff) -> bool:
@@ -431,7 +452,8 @@ data do not determine [-]: the Gauss-Newton step and its test leave them out."""
 
 
 def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
-                      bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+                      bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                      triangle: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """What the full Gauss-Newton step from a point lowers the cost ``rᵀr`` by, to
     first order: with residual r (N,) and Jacobian J (N, p), δ = −(JᵀJ)⁺Jᵀr lowers it by
     Δ = gᵀ(JᵀJ)⁺g (g = Jᵀr). Directions whose singular value is below ``rcond`` times
@@ -447,7 +469,9 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     approaches it only as θ → −∞, and the unbounded step, which would carry it below
     0, promises a fall no step can give, however close the weight is (its drop does
     not shrink with the weight), so the fit never converged. Within the bounds the
-    two steps are the same and so is the drop (the same arithmetic)."""
+    two steps are the same and so is the drop (the same arithmetic). ``triangle``: the
+    point's ``(R, c)`` when already made (:attr:`LevenbergMarquardtSteps.triangle`), for
+    the bounded step's least squares (the same minimiser, without factorising J again)."""
     r = np.asarray(residual, dtype=float)
     j = np.asarray(jac, dtype=float)
     if not np.all(np.isfinite(j)):
@@ -473,7 +497,7 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     if np.all((step >= lo) & (step <= hi)):
         return drop
     try:
-        return min(drop, _bounded_drop(j, r, lo, hi))
+        return min(drop, _bounded_drop(j, r, lo, hi, triangle))
     except (np.linalg.LinAlgError, ValueError):  # the unbounded drop: no convergence claimed
         return drop
 
@@ -498,15 +522,18 @@ def bounded_gauss_newton_step(jac, residual, lo, hi, damping: float = 0.0) -> np
 
 
 def _bounded_drop(jac: np.ndarray, residual: np.ndarray, lo: np.ndarray,
-                  hi: np.ndarray) -> float:
-    """``rᵀr − min |r + Jδ|²`` over lo ≤ δ ≤ hi (:func:`bounded_gauss_newton_step`)."""
-    delta = bounded_gauss_newton_step(jac, residual, lo, hi)
+                  hi: np.ndarray, triangle: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> float:
+    """``rᵀr − min |r + Jδ|²`` over lo ≤ δ ≤ hi (:func:`bounded_gauss_newton_step`, in
+    ``triangle``'s ``(R, Qᵀr)`` when given: the same δ)."""
+    delta = bounded_gauss_newton_step(*(triangle or (jac, residual)), lo, hi)
     return max(float(residual @ residual) - float(np.sum((jac @ delta + residual) ** 2)),
                0.0)
 
 
 def gauss_newton_distance(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
-                          bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+                          bounds: tuple[np.ndarray, np.ndarray] | None = None,
+                          triangle: tuple[np.ndarray, np.ndarray] | None = None) -> float:
     """Squared length of the full Gauss-Newton step from a point, in standard errors:
     its cost drop (:func:`gauss_newton_drop`, within ``bounds`` when given) divided by
     σ̂² = rᵀr/(N − p), the step's Mahalanobis length squared under the covariance
@@ -520,7 +547,7 @@ def gauss_newton_distance(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
         return float("inf")
     if sigma2 <= 0:
         return 0.0
-    return gauss_newton_drop(r, jac, rcond=rcond, bounds=bounds) / sigma2
+    return gauss_newton_drop(r, jac, rcond=rcond, bounds=bounds, triangle=triangle) / sigma2
 
 
 def value_and_jacobian(residuals: Callable, theta):
@@ -773,7 +800,9 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
             costs.append(cost)
             if gn_tol is not None:  # (value, jac) are this accepted point's
                 bounds = None if bounds_at is None else bounds_at(lm.y)
-                distance = gauss_newton_distance(value, jac, bounds=bounds)
+                distance = gauss_newton_distance(
+                    value, jac, bounds=bounds,
+                    triangle=None if bounds is None else lm.triangle)
                 if echo is not None:
                     echo(f"  {label}: Gauss-Newton step {np.sqrt(distance):.3g} SE")
                 if distance <= gn_tol:
