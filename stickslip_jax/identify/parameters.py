@@ -121,10 +121,18 @@ def set_quantity(getter: Callable, tree, value):
     is a tuple of scalars (coefficients a fit frees one by one, :class:`ParameterSpec`)
     takes ``value``'s last axis, one element per scalar, so that the tree keeps its
     structure."""
-    node = getter(tree)
-    if isinstance(node, tuple):
-        value = tuple(value[..., i] for i in range(len(node)))
-    return eqx.tree_at(getter, tree, value)
+    return set_quantities([getter], tree, [value])
+
+
+def set_quantities(getters: Sequence[Callable], tree, values: Sequence):
+    """``tree`` with each quantity ``getters[i]`` selects set to ``values[i]`` (as
+    :func:`set_quantity`, in one ``eqx.tree_at``: one copy of the tree, not one per
+    quantity; the quantities must be distinct nodes, none inside another)."""
+    if not getters:
+        return tree
+    values = [tuple(v[..., i] for i in range(len(node))) if isinstance(node, tuple) else v
+              for node, v in zip((g(tree) for g in getters), values, strict=True)]
+    return eqx.tree_at(lambda t: tuple(g(t) for g in getters), tree, tuple(values))
 
 
 @dataclass(frozen=True)
@@ -362,12 +370,10 @@ class ParameterMap(eqx.Module):
     def actuator(self, theta, *, xp=jnp) -> Actuator:
         """The actuator at ``theta``; ``xp=numpy`` evaluates the transforms in numpy (for
         a concrete θ: nothing compiled) and sets the leaves as JAX arrays."""
-        act = self.start
         sl = self.slices()
-        for p, getter in zip(self.free, self.getters, strict=True):
-            value = p.to_physical(theta[sl[p.name]], xp=xp)
-            act = set_quantity(getter, act, value if xp is jnp else jnp.asarray(value))
-        return act
+        values = [p.to_physical(theta[sl[p.name]], xp=xp) for p in self.free]
+        return set_quantities(self.getters, self.start,
+                              [v if xp is jnp else jnp.asarray(v) for v in values])
 
     def physical(self, theta) -> dict[str, np.ndarray]:
         """Physical values of the free parameters at ``theta`` (numpy)."""
@@ -405,9 +411,10 @@ class ParameterMap(eqx.Module):
         theta = np.asarray(theta, dtype=float)
         out = jax.tree.map(lambda x: np.zeros((self.size,) + np.shape(x)),
                            eqx.filter(self.start, mask))
+        values = []
         for p, getter in zip(self.free, self.getters, strict=True):
             rows = np.zeros((self.size,) + np.shape(getter(self.start)))
             rows[sl[p.name]] = p.derivative(theta[sl[p.name]]).T.reshape(
                 (p.size,) + rows.shape[1:])
-            out = set_quantity(getter, out, rows)
-        return out
+            values.append(rows)
+        return set_quantities(self.getters, out, values)
