@@ -10,6 +10,7 @@ import pytest
 
 from stickslip_jax.identify.parameters import FreeParameter
 from stickslip_jax.identify.solve import (
+    bounded_gauss_newton_step,
     gauss_newton_distance,
     gauss_newton_drop,
     solve_least_squares,
@@ -123,3 +124,31 @@ def test_a_jacobian_that_is_not_finite_is_never_called_converged():
     # (ordinary) drop / σ̂², σ̂² = rᵀr/(N − p)
     assert gauss_newton_distance(r, ok) == pytest.approx(
         gauss_newton_drop(r, ok) / (r @ r / 2), rel=1e-12)
+
+
+@pytest.mark.parametrize("shape", [(400, 6), (5, 8)])
+def test_every_step_from_the_triangle_is_the_step_from_the_whole_jacobian(shape):
+    # The steps are solved in R and c = Qᵀr (one QR per accepted point); each must be
+    # the least-squares step of the N-row problem: damped, Gauss-Newton (rank-deficient
+    # here: two equal columns) and bounded.
+    from scipy.optimize import lsq_linear
+
+    from stickslip_jax.identify.solve import LevenbergMarquardtSteps
+
+    rng = np.random.default_rng(3)
+    jac = rng.standard_normal(shape)
+    jac[:, 1] = jac[:, 0]
+    r = rng.standard_normal(shape[0])
+    lm = LevenbergMarquardtSteps(np.zeros(shape[1]), step_size=0.7)
+    lm.step(r, jac)  # the start: accepted
+    k = shape[1]
+    damped = np.linalg.lstsq(np.vstack([jac, np.sqrt(1 / 0.7) * np.eye(k)]),
+                             np.concatenate([r, np.zeros(k)]), rcond=None)[0]
+    np.testing.assert_allclose(lm._damped_step(), damped, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(lm._gauss_newton_step(),
+                               np.linalg.lstsq(jac, r, rcond=1e-9)[0], rtol=1e-9, atol=1e-12)
+    lo, hi = np.full(k, -0.05), np.full(k, 0.05)
+    tri, c = lm.triangle
+    np.testing.assert_allclose(bounded_gauss_newton_step(tri, c, lo, hi),
+                               lsq_linear(jac, -r, bounds=(lo, hi), method="bvls").x,
+                               rtol=1e-9, atol=1e-12)
