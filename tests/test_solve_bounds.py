@@ -152,3 +152,19 @@ def test_every_step_from_the_triangle_is_the_step_from_the_whole_jacobian(shape)
     np.testing.assert_allclose(bounded_gauss_newton_step(tri, c, lo, hi),
                                lsq_linear(jac, -r, bounds=(lo, hi), method="bvls").x,
                                rtol=1e-9, atol=1e-12)
+
+
+def test_a_column_whose_squares_overflow_is_scaled_and_the_fit_converges():
+    # θ₁ enters at 1e160 (a parameter in absurd units): its column's sum of squares
+    # overflows though every entry is finite. The column scaling must still be its
+    # norm (not inf, which made the scaled column NaN and the final Jacobian inf·0),
+    # so the fit finds the optimum.
+    x = jnp.linspace(0.0, 1.0, 50)
+    y = 1.5 + 0.75 * x
+
+    def residuals(th):
+        return 1e150 * th[0] + 1e160 * th[1] * x - y
+
+    out = solve_least_squares(residuals, jnp.array([0.0, 0.0]))
+    assert out.converged
+    np.testing.assert_allclose(out.theta, [1.5e-150, 0.75e-160], rtol=1e-8)

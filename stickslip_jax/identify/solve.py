@@ -724,7 +724,13 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
     if scale_by_jacobian:
         # MINPACK's x_scale='jac': the Jacobian at the start gives the column norms,
         # and the solve runs in the scaled coordinates (∂r/∂φ = ∂r/∂θ / d).
-        norms = np.sqrt(np.sum(np.asarray(jac) ** 2, axis=0))
+        j = np.asarray(jac)
+        with np.errstate(over="ignore"):
+            norms = np.sqrt(np.sum(j**2, axis=0))
+        big = ~np.isfinite(norms) & np.all(np.isfinite(j), axis=0)
+        if big.any():  # a finite column whose squares overflow: its norm scaled down first
+            top = np.max(np.abs(j[:, big]), axis=0)
+            norms[big] = top * np.sqrt(np.sum((j[:, big] / top) ** 2, axis=0))
         largest = float(norms.max())
         norms = np.where(np.isfinite(norms) & (norms > 1e-12 * max(largest, 1e-300)), norms,
                          max(largest, 1.0))
