@@ -24,6 +24,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..identify.solve import triangle_of
+
 RCOND = 1e-10
 """Relative singular-value cut-off of the leave-out solves (columns normalised)."""
 
@@ -55,10 +57,7 @@ def held_out_cost(residual: np.ndarray, jacobian: np.ndarray, regimes: Sequence[
     # squares over every regime but g is then that over the stacked (R_h, c_h) of the
     # others (the same singular values and minimum-norm solution: the Q_h are
     # orthonormal), a few P-row blocks instead of the N rows once per regime.
-    blocks = {}
-    for g in names:
-        q, tri = np.linalg.qr(jn[row_regime == g])
-        blocks[g] = (tri, q.T @ r[row_regime == g])
+    blocks = {g: triangle_of(jn[row_regime == g], r[row_regime == g]) for g in names}
     out: dict[str, float] = {}
     for g in names:
         held = row_regime == g

@@ -412,8 +412,7 @@ class LevenbergMarquardtSteps:
         fits, where most steps are rejected, those factorisations of the whole Jacobian
         were a third of the run."""
         if self._triangle is None:
-            q, tri = np.linalg.qr(self.jac)
-            self._triangle = (tri, q.T @ self.residual)
+            self._triangle = triangle_of(self.jac, self.residual)
         return self._triangle
 
     def _gauss_newton_step(self) -> np.ndarray:
@@ -444,6 +443,20 @@ class LevenbergMarquardtSteps:
             y_ok = rms(np.abs(y_diff) / (self.atol + self.rtol * np.abs(self.y_eval))) < 1
             f_ok = rms(np.abs(f_diff) / (self.atol + self.rtol * np.abs(f))) < 1
         return bool(y_ok and f_ok)
+
+
+def triangle_of(jac: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, Qᵀr)`` of the QR factorisation J = QR (``jac`` N × k, ``residual`` r (N,)),
+    the rows where both are 0 left out first: they change neither (a padded recording's
+    rows; up to half of a diagnosis's), and the factorisation's work is in proportion
+    to the rows."""
+    j = np.asarray(jac, dtype=float)
+    r = np.asarray(residual, dtype=float)
+    rows = np.flatnonzero(np.any(j != 0, axis=1) | (r != 0))
+    if rows.size and rows.size < r.size:
+        j, r = j[rows], r[rows]
+    q, tri = np.linalg.qr(j)
+    return tri, q.T @ r
 
 
 GAUSS_NEWTON_RCOND = 1e-9
