@@ -151,6 +151,9 @@ def test_every_step_from_the_triangle_is_the_step_from_the_whole_jacobian(shape)
                                np.linalg.lstsq(jac, r, rcond=1e-9)[0], rtol=1e-9, atol=1e-12)
     lo, hi = np.full(k, -0.05), np.full(k, 0.05)
     tri, c = lm.triangle
+    for bounds in (None, (lo, hi)):  # the convergence test's drop, from the triangle
+        assert gauss_newton_drop(r, jac, bounds=bounds, triangle=lm.triangle) == pytest.approx(
+            gauss_newton_drop(r, jac, bounds=bounds), rel=1e-10)
     np.testing.assert_allclose(bounded_gauss_newton_step(tri, c, lo, hi),
                                lsq_linear(jac, -r, bounds=(lo, hi), method="bvls").x,
                                rtol=1e-9, atol=1e-12)

@@ -484,14 +484,16 @@ def gauss_newton_drop(residual, jac, *, rcond: float = GAUSS_NEWTON_RCOND,
     not shrink with the weight), so the fit never converged. Within the bounds the
     two steps are the same and so is the drop (the same arithmetic). ``triangle``: the
     point's ``(R, c)`` when already made (:attr:`LevenbergMarquardtSteps.triangle`), for
-    the bounded step's least squares (the same minimiser, without factorising J again)."""
+    JᵀJ = RᵀR, Jᵀr = Rᵀc and the bounded step's least squares (the same quantities to
+    rounding, without another pass over the N rows)."""
     r = np.asarray(residual, dtype=float)
     j = np.asarray(jac, dtype=float)
     if not np.all(np.isfinite(j)):
         return np.inf
     with np.errstate(over="ignore", invalid="ignore"):
-        h = j.T @ j
-        g = j.T @ r
+        # From the triangle where made: RᵀR = JᵀJ and Rᵀ(Qᵀr) = Jᵀr, in k rows, not N.
+        h, g = ((triangle[0].T @ triangle[0], triangle[0].T @ triangle[1])
+                if triangle is not None else (j.T @ j, j.T @ r))
     try:
         if not (np.all(np.isfinite(h)) and np.all(np.isfinite(g))):
             raise np.linalg.LinAlgError("JᵀJ or Jᵀr overflows")
@@ -819,9 +821,8 @@ def solve_least_squares(residuals, theta0, settings: LMSettings | None = None, *
             costs.append(cost)
             if gn_tol is not None:  # (value, jac) are this accepted point's
                 bounds = None if bounds_at is None else bounds_at(lm.y)
-                distance = gauss_newton_distance(
-                    value, jac, bounds=bounds,
-                    triangle=None if bounds is None else lm.triangle)
+                distance = gauss_newton_distance(value, jac, bounds=bounds,
+                                                 triangle=lm.triangle)
                 if echo is not None:
                     echo(f"  {label}: Gauss-Newton step {np.sqrt(distance):.3g} SE")
                 if distance <= gn_tol:
