@@ -48,16 +48,15 @@ def held_out_cost(residual: np.ndarray, jacobian: np.ndarray, regimes: Sequence[
     row_regime = np.repeat(labels, rows_per)
     norms = np.linalg.norm(jac, axis=0)
     jn = jac / np.where(norms > 0, norms, 1.0)
-    # One SVD for both the 2-norm and the rank (np.linalg.norm(jn, 2) and matrix_rank
-    # each make the same one: the same numbers, half the work).
-    sv = np.linalg.svd(jn, compute_uv=False)
-    full_rank = int(np.count_nonzero(sv > RCOND * sv.max())) if sv.size else 0
     names = list(dict.fromkeys(labels.tolist()))
     # Each regime's rows factorised once, J_h = Q_h·R_h and c_h = Q_hᵀr_h: the least
     # squares over every regime but g is then that over the stacked (R_h, c_h) of the
     # others (the same singular values and minimum-norm solution: the Q_h are
-    # orthonormal), a few P-row blocks instead of the N rows once per regime.
+    # orthonormal), a few P-row blocks instead of the N rows once per regime; all of
+    # them stacked have J's singular values, so J's rank too.
     blocks = {g: triangle_of(jn[row_regime == g], r[row_regime == g]) for g in names}
+    sv = np.linalg.svd(np.concatenate([blocks[g][0] for g in names]), compute_uv=False)
+    full_rank = int(np.count_nonzero(sv > RCOND * sv.max())) if sv.size else 0
     out: dict[str, float] = {}
     for g in names:
         held = row_regime == g
