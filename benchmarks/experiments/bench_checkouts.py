@@ -49,15 +49,21 @@ recs, d = td.run(ss.load_params(td.TRUTH), effect, **kw)
 wall = time.perf_counter() - t0
 content = diagnosis_dict(d)
 content.pop("timings_s", None)
-json.dump({"wall_s": wall, "diagnosis": content}, open(sys.argv[2], "w"), default=str)
+json.dump({"wall_s": wall, "diagnosis": content, "package": ss.__file__},
+          open(sys.argv[2], "w"), default=str)
 """
 
 
 def run_once(checkout: Path, effect: str, out: Path) -> dict:
     env = dict(os.environ, PYTHONPATH=str(checkout.resolve()), MPLBACKEND="Agg")
+    # Run from the output's folder: ``python -c`` puts its working directory first on
+    # sys.path, and a checkout there would win over PYTHONPATH.
     subprocess.run([sys.executable, "-c", CHILD, effect, str(out), str(ROOT / "tests")],
-                   env=env, check=True, stdout=subprocess.DEVNULL)
-    return json.loads(out.read_text())
+                   env=env, check=True, stdout=subprocess.DEVNULL, cwd=out.parent)
+    got = json.loads(out.read_text())
+    if not Path(got["package"]).resolve().is_relative_to(checkout.resolve()):
+        raise RuntimeError(f"{checkout} ran the package at {got['package']}")
+    return got
 
 
 def differences(a, b, path: str = "") -> tuple[float, str, list[str]]:
