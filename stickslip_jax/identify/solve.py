@@ -408,9 +408,9 @@ class LevenbergMarquardtSteps:
         and its residual in Q's columns, c = Qᵀr. Every step from the point solves a
         least-squares problem in J and r whose minimiser is the same in R and c
         (``|r + Jδ|² = |c + Rδ|² + |r|² − |c|²``), so the N-row factorisation is made
-        once per accepted point, not once per step tried from it: on a diagnosis's
-        fits, where most steps are rejected, those factorisations of the whole Jacobian
-        were a third of the run."""
+        once per accepted point, not once per step tried from it (most of a diagnosis's
+        steps are rejected; a reduced diagnosis ran 4-7 % faster, benchmarks/README,
+        ``experiments/bench_checkouts.py``)."""
         if self._triangle is None:
             self._triangle = triangle_of(self.jac, self.residual)
         return self._triangle
