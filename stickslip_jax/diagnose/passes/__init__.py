@@ -22,10 +22,10 @@ with_passes`), after the default ones in this order: on the two development spli
 sets, ``benchmarks/results/ablation_dev.json`` and ``ablation_dev2.json``) and the eight
 concealed sets and variants they were written for (``ablation_concealed_passes.json``)
 none of them changed a name or a verdict. ``rivals`` and ``reidentify`` never ran;
-``second_look`` ran on concealed set_09 and, in runs after those tables, on dev2 sets
-23 and 44 (a drive stage each time), and refitted nothing that was accepted or named a
-rival; ``carry_on`` ran on 7 of the first split's sets and changed no name or verdict
-(#66's ablation, benchmarks/README.md)."""
+``second_look`` ran on one concealed set and two development sets (a drive stage each
+time) and refitted nothing that was accepted or named a rival; ``carry_on`` ran on 7
+of the first split's sets and changed no name or verdict (which sets: #66's ablation,
+benchmarks/README.md)."""
 
 PASS_NAMES = {p.name: type(p) for p in (*DEFAULT_PASSES, *OPT_IN_PASSES)}
 """Every pass's class by its name, the default ones first (ablations: ``--without-pass
