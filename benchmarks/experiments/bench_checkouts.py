@@ -30,6 +30,8 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))  # results_record
+from results_record import commit_of, write_record  # noqa: E402
 
 CHILD = """
 import json, sys, time
@@ -127,10 +129,9 @@ def main() -> None:
             print(f"{effect}: median {med['before']:.1f} -> {med['after']:.1f} s "
                   f"({med['after'] / med['before']:.2f}x); largest relative difference "
                   f"{worst:.2g} at {where or '-'}; other differences: {other or 'none'}")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"before": str(args.before), "after": str(args.after),
-                                         "rows": rows}, indent=1))
+    write_record(args.json, before=str(args.before), after=str(args.after),
+                 before_commit=commit_of(args.before), after_commit=commit_of(args.after),
+                 rows=rows)
 
 
 if __name__ == "__main__":
