@@ -40,6 +40,11 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import stickslip_jax as ss  # noqa: E402
+
+# Before SEEDED below runs JAX: the reruns diagnose in this process, about 3x slower
+# on a CPU without the native small loops.
+ss.fast_cpu_loops()
+
 from stickslip_jax.diagnose import CATALOGUE, Policy  # noqa: E402
 from stickslip_jax.diagnose.passes import PASS_NAMES  # noqa: E402
 from stickslip_jax.diagnose.report import entry_from_record  # noqa: E402
