@@ -179,6 +179,34 @@ def test_a_polish_or_refit_short_of_its_optimum_is_said(base, tmp_path):
     assert _sizing_drops({**capped, "status": "scored"}) == ""
 
 
+def test_the_baseline_polish_takes_the_configured_damping_update(base, monkeypatch):
+    """The polish changes its damping as the configuration says (Nielsen's by
+    default, as the identification's joint step); the sizings and refits keep the
+    classical update; an unknown update is refused before anything runs."""
+    from stickslip_jax.diagnose import DiagnoseConfig
+    from stickslip_jax.diagnose.problem import Problem
+
+    class Stop(Exception):
+        pass
+
+    seen = []
+
+    def fit_from(self, program, theta0, *, label, damping_update="classical", **kw):
+        seen.append((label, damping_update))
+        raise Stop
+
+    monkeypatch.setattr(Problem, "fit_from", fit_from)
+    recs = reduced_set(base, "none")[2:4]
+    for update in ("nielsen", "classical"):
+        with pytest.raises(Stop):
+            diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(),
+                     polish_damping_update=update)
+    assert seen == [("baseline polish", "nielsen"), ("baseline polish", "classical")]
+    assert DiagnoseConfig().polish_damping_update == "nielsen"
+    with pytest.raises(ValueError, match="polish_damping_update"):
+        DiagnoseConfig(polish_damping_update="marquardt")
+
+
 def _budget_run(base, work_budget):
     recs = reduced_set(base, "sensor_delay")[2:7]
     return diagnose(recs, init=base, fix={"Ms": 0.0247}, identify_steps=(),

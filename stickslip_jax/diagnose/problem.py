@@ -372,11 +372,14 @@ class Problem:
 
     def fit_from(self, program: FitProgram, theta0, *, label: str, max_steps: int,
                  initial_damping: float = 1.0,
-                 project: np.ndarray | None = None) -> tuple[Actuator, float, object]:
+                 project: np.ndarray | None = None,
+                 damping_update: str = "classical") -> tuple[Actuator, float, object]:
         """:meth:`fit` in the coordinates of ``program`` from ``theta0``, with its
         compiled program: a fit that goes on from where another ended (the sizing with
         the baseline free to first order after the held one) compiles nothing.
-        ``project`` is applied to the program's residual and Jacobian, in numpy."""
+        ``project`` is applied to the program's residual and Jacobian, in numpy.
+        ``damping_update``: how an accepted step changes the LM damping
+        (:attr:`~stickslip_jax.identify.solve.LevenbergMarquardtSteps.DAMPING_UPDATES`)."""
         basis = None if project is None else np.asarray(project)
 
         def jacobian(theta):
@@ -395,6 +398,7 @@ class Problem:
             program.residuals, jnp.asarray(basis))
         settings = LMSettings(max_steps=max_steps, gn_tol=JOINT_GN_TOL,
                               initial_damping=initial_damping,
+                              damping_update=damping_update,
                               gauss_newton_trial=self.gauss_newton_trial)
         out = solve_least_squares(res, jnp.asarray(theta0, dtype=float), settings,
                                   label=label, echo=None, jacobian=jacobian, value=value,

@@ -189,7 +189,8 @@ def _baseline(problem: Problem, init: Actuator, identify_steps: Sequence[str],
     # The identification's joint step already minimised this residual (the ML
     # whitened one): the polish starts near its optimum, with little damping.
     base, polish = _polished(problem, act, "baseline polish", 3 * config.max_steps,
-                             1e-3 if identify_steps else 1.0)
+                             1e-3 if identify_steps else 1.0,
+                             damping_update=config.polish_damping_update)
     if not polish.converged:
         # Every later comparison is against this optimum: a baseline short of its own
         # optimum leaves residual that any entry with a baseline-like signature buys.
@@ -205,15 +206,18 @@ def _baseline_program(problem: Problem, start: Actuator):
 
 
 def _polished(problem: Problem, start: Actuator, label: str, max_steps: int,
-              initial_damping: float, program=None) -> tuple[_Baseline, object]:
+              initial_damping: float, program=None,
+              damping_update: str = "classical") -> tuple[_Baseline, object]:
     """``start`` polished on the whitened residual with every baseline quantity free
     (``program``: :func:`_baseline_program` of ``start`` when already made): the
-    baseline it makes (``start`` as its unpolished one) and the solve's result."""
+    baseline it makes (``start`` as its unpolished one) and the solve's result.
+    ``damping_update``: the LM's (:meth:`~.problem.Problem.fit_from`)."""
     program = program or _baseline_program(problem, start)
     names = list(program.pmap.names)
     n_base = int(np.size(program.pmap.zeros()))  # θ columns
     act, _, polish = problem.fit_from(program, program.pmap.zeros(), label=label,
-                                      max_steps=max_steps, initial_damping=initial_damping)
+                                      max_steps=max_steps, initial_damping=initial_damping,
+                                      damping_update=damping_update)
     rss, nrmse0, q0 = problem.evaluate(act)
     rss_start = float(polish.cost_start)  # the identification's (or init's) cost
     at_act = (None if polish.jacobian is None
