@@ -24,7 +24,11 @@ over ``N`` samples:
 
 Several defaults were tuned on the concealed fixture sets and their variants
 (:mod:`stickslip_jax.testing.concealed`) and have no statistical derivation yet; their
-docstrings say so.
+docstrings say so, and what the ablation on the development split (dev2, 34 sets:
+benchmarks/README, ``bench_ablation.py``) measured of each: on how many sets the gates
+it sets flip at half or twice its value (replayed on the recorded decisions), and how
+many of those sets, diagnosed again with the value moved, named another entry or gave
+another verdict.
 """
 
 from __future__ import annotations
@@ -90,7 +94,10 @@ class Policy:
     is about half of the RMS excess (``1 − √0.25 = 0.5``). Lower values let a wrong
     entry that mimics part of a large effect of another form be named (a constant load
     took 52 % of a slew-limited drive's excess), and a wrong name is worse than none.
-    Tuned on the concealed sets; no statistical derivation yet."""
+    Tuned on the concealed sets; no statistical derivation yet. Ablation: gates flip on
+    3 sets at half, 4 at twice; rerun at twice on all 4, none named another
+    entry or gave another verdict (three of them end within the tolerance, which
+    accepts an entry whatever this share)."""
 
     partial_min: float = 0.5
     """When no refit explains the residual (:attr:`explained_min`), the best refit that
@@ -101,7 +108,8 @@ class Policy:
     entry, or the learned correction on top of it). Half: most of the squared excess,
     the largest share a wrong entry that mimics a part of a strong effect must stay
     below (a constant load took 52 % of a slew-limited drive's); no statistical
-    derivation."""
+    derivation. Ablation: gates flip on no set at half, on 3 at twice (not rerun
+    yet)."""
 
     significance_z: float = SIGNIFICANCE_Z
     """One-sided normal quantile of the practical-significance tests
@@ -132,7 +140,9 @@ class Policy:
     """An entry whose probes all have the wrong first-order sign is sized anyway when
     its ``|S|`` reaches this share of the round's largest: a large effect that the
     polished baseline bent itself to mimic can turn the first-order sign around. Tuned
-    on the concealed sets; no statistical derivation yet."""
+    on the concealed sets; no statistical derivation yet. Ablation: which entries are
+    sized flips on 4 sets at half, 3 at twice; rerun on 3 of the 7, none named another
+    entry or gave another verdict."""
 
     competitive_share: float = 0.25
     """Below the leader, an entry gets a first refit (every baseline parameter freed:
@@ -142,7 +152,9 @@ class Policy:
     whose first-order promise is a quarter of the leader's is unlikely to explain more
     of the residual than the leader after the refit. Tuned on the concealed sets (no entry
     whose sizing removed less than a quarter of the leader's came near the leader
-    after its refit); no statistical derivation yet."""
+    after its refit); no statistical derivation yet. Ablation: the first refits flip on
+    4 sets at half, 6 at twice; rerun on 4 of the 10, none named another entry or gave
+    another verdict."""
 
     leader_alone_share: float = 0.90
     """When the leader's sizing alone (its own parameters, the baseline held) removes
@@ -150,13 +162,15 @@ class Policy:
     the leader's drop, the leader is refitted alone first; the others wait for the
     fallback. A sizing that nearly reaches the noise with the baseline held leaves the
     competitors little to explain. Tuned on the concealed sets (competitors' refits
-    ended 25-45 points below such a leader's); no statistical derivation yet."""
+    ended 25-45 points below such a leader's); no statistical derivation yet. Ablation:
+    the first refits flip on 8 sets at half (a leader refitted alone), none at twice;
+    rerun on 6 of the 8, none named another entry or gave another verdict."""
 
     leader_alone_lead: float = 0.75
     """See :attr:`leader_alone_share`: the share of the leader's sizing drop that a
     competitor's sizing must reach to keep its first refit beside a leader that
     removed nearly the whole excess. Tuned on the concealed sets; no statistical
-    derivation yet."""
+    derivation yet. Ablation: no gate flips on any set at half or twice."""
 
     later_score_share: float = 0.10
     """After an acceptance, an entry is sized in the next round only when its ``|S|``
@@ -165,7 +179,8 @@ class Policy:
     buys only a small share to first order, while a second effect of comparable size
     scores like a first one. Tuned on the concealed sets (5 % at most after an
     acceptance against 27-99 % for a real second effect); no statistical derivation
-    yet."""
+    yet. Ablation: which entries a later round sizes flips on 1 set at half and at
+    twice; rerun at both, the same entries and verdict."""
 
     second_look_chi2: float = 2.0
     """When every refit that would be accepted leaves a mean ``(e/σ)²`` above this, the
