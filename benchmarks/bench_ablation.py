@@ -1,8 +1,9 @@
 """Does each refit pass and each tuned threshold of the diagnosis earn its place (#66)?
 
-Reads the rows of ``bench_diagnose_split.py`` runs of the development split (never
-the frozen test split: that would be tuning on it) and answers from what each row
-recorded (every entry's score, sizings, refit, status and the pass that refitted it):
+Reads the rows of ``bench_diagnose_split.py`` runs of a development split, or of
+``bench_diagnose.py`` runs of the concealed sets and their variants (never the frozen
+test split: that would be tuning on it) and answers from what each row recorded
+(every entry's score, sizings, refit, status and the pass that refitted it):
 
 - **Passes**: a pass switched off changes a set's answer only through its refits: one
   accepted (in any round) or named indistinguishable from the accepted one, or the
@@ -13,7 +14,8 @@ recorded (every entry's score, sizings, refit, status and the pass that refitted
   diagnoses the decisive and budget-bound sets again without the pass and reports
   what they name then.
 - **Thresholds**: each :class:`~stickslip_jax.diagnose.Policy` field moved by a
-  factor of two each way, the decisions it gates replayed on the recorded numbers of
+  factor of two each way, and the rule it sets switched off (:data:`RULE_OFF`), the
+  decisions it gates replayed on the recorded numbers of
   every round (which entries are sized, which refitted first, which accepted and
   whether partly, whether the second look opens). A threshold under which no gate
   flips on any set changes nothing there; where one flips, the set is listed (the
@@ -32,6 +34,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -61,10 +64,27 @@ from stickslip_jax.diagnose.rules import (  # noqa: E402
 from stickslip_jax.diagnose.sizing import chosen_for_sizing  # noqa: E402
 
 UNSIZED = {CandidateStatus.SCORED.value, CandidateStatus.NOT_SIZED.value}
-DEVELOPMENT_SPLITS = ("dev", "dev2")
-"""The splits this reads (:mod:`stickslip_jax.testing.random_sets`); never a test split."""
+DEVELOPMENT_SPLITS = ("dev", "dev2", "concealed")
+"""The splits this reads (:mod:`stickslip_jax.testing.random_sets`, and the concealed
+sets with their variants, ``bench_diagnose.py``'s rows); never a test split."""
 NOT_REPLAYED = ("significance_z", "reidentify_polish_gain", "learned_t_min")
 TOP = 3  # diagnose()'s default refits per round
+RULE_OFF = {
+    "score_min": 0.0,            # every entry may be sized, however little it scores
+    "bic_min": math.inf,         # no ΔBIC test in an acceptance or a rival
+    "explained_min": 0.0,        # any share explains: no "partly", no structured rest
+    "partial_min": math.inf,     # no partial answers
+    "excess_min": 0.0,           # shares of the excess taken however small it is
+    "wrong_sign_share": math.inf,  # a wrong-sign entry sized only on its own rank
+    "competitive_share": 0.0,    # every promising entry of the top gets a first refit
+    "leader_alone_share": math.inf,  # the leader never refitted alone
+    "leader_alone_lead": math.inf,   # no competitor keeps its first refit beside it
+    "later_score_share": 0.0,    # a later round sizes by score_min alone
+}
+"""Per rule-setting :class:`~stickslip_jax.diagnose.Policy` field, the value that
+switches its rule off (the rule's test always passes, or never fires). Not here:
+``size_at_most`` (work, not a rule) and ``second_look_chi2`` (its pass is opt-in, so
+off by default)."""
 SEEDED = {c.name for c in CATALOGUE if c.seeds(ss.lu2015_slc1720())}
 """Entries with seeds on the split's start (the profile)."""
 
@@ -127,8 +147,14 @@ def moved(policy: Policy, name: str, factor: float) -> Policy:
                                           else value})
 
 
+MOVES = ("x0.5", "x2", "off")
+"""The threshold table's columns: half, twice, and the rule switched off
+(:data:`RULE_OFF`; absent for a field not there)."""
+
+
 def threshold_table(rows: list[dict]) -> list[dict]:
-    """Per replayable Policy field and factor: the sets where a gate flips."""
+    """Per replayable Policy field and move (:data:`MOVES`): the sets where a gate
+    flips."""
     default = Policy()
     base = {row["set"]: gates(row, default) for row in rows}
     table = []
@@ -136,15 +162,19 @@ def threshold_table(rows: list[dict]) -> list[dict]:
         if field.name in NOT_REPLAYED:
             continue
         line = {"field": field.name, "default": getattr(default, field.name)}
-        for factor in (0.5, 2.0):
-            policy = moved(default, field.name, factor)
+        policies = {"x0.5": moved(default, field.name, 0.5),
+                    "x2": moved(default, field.name, 2.0)}
+        if field.name in RULE_OFF:
+            policies["off"] = dataclasses.replace(default,
+                                                  **{field.name: RULE_OFF[field.name]})
+        for move, policy in policies.items():
             flips = {}
             for row in rows:
                 now = gates(row, policy)
                 changed = [g for g in now if now[g] != base[row["set"]][g]]
                 if changed:
                     flips[row["set"]] = changed
-            line[f"x{factor:g}"] = {"value": getattr(policy, field.name), "flips": flips}
+            line[move] = {"value": getattr(policy, field.name), "flips": flips}
         table.append(line)
     return table
 
@@ -182,13 +212,15 @@ def _without(name: str):
 
 def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
           fields: list[str], out: Path | None, part: tuple[int, int],
-          split: str = "dev", paired: bool = False) -> list[dict]:
+          split: str = "dev", paired: bool = False,
+          moves: tuple[str, ...] = MOVES) -> list[dict]:
     """Diagnose again each pass's decisive and budget-bound sets without it, and each
     set whose gates flip under a threshold of ``fields`` moved; ``part`` ``(k, n)``:
     the k-th of n interleaved shares of the runs (parallel processes); ``split`` the
     development split the rows are of (:data:`DEVELOPMENT_SPLITS`); ``paired``: each
     set rerun with the default configuration too (change ``"default"``), so that the
-    change is judged against this commit, not against the rows' older one. Appended to
+    change is judged against this commit, not against the rows' older one; ``moves``
+    the threshold moves rerun (:data:`MOVES`). Appended to
     ``out`` as each ends; runs already there are skipped (resume)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_diagnose_split import run_one  # noqa: PLC0415 (heavy; only here)
@@ -205,10 +237,14 @@ def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
     for t in thresholds:
         if t["field"] not in fields:
             continue
-        for factor in ("x0.5", "x2"):
-            value = t[factor]["value"]
+        for move in moves:
+            if move not in t:
+                continue
+            value = t[move]["value"]
             config = DiagnoseConfig(policy=dataclasses.replace(Policy(), **{t["field"]: value}))
-            runs += [(f"{t['field']} = {value:g}", name, config) for name in t[factor]["flips"]]
+            label = (f"{t['field']} off ({value:g})" if move == "off"
+                     else f"{t['field']} = {value:g}")
+            runs += [(label, name, config) for name in t[move]["flips"]]
     index = {row["set"]: row for row in rows}
     if paired:
         # Each set's default run beside its changes, the quickest sets (by the rows'
@@ -246,6 +282,8 @@ def main() -> None:
                     help="diagnose each pass's decisive and budget-bound sets without it, "
                          "and the sets whose gates flip under --fields moved")
     ap.add_argument("--fields", default="", help="Policy fields whose flips --rerun runs")
+    ap.add_argument("--moves", default=",".join(MOVES),
+                    help=f"which of the fields' moves --rerun runs (of {', '.join(MOVES)})")
     ap.add_argument("--paired", action="store_true",
                     help="--rerun each set with the default configuration too, at this "
                          "commit (the rows may be older)")
@@ -266,23 +304,27 @@ def main() -> None:
         sys.exit(f"rows of one split at a time, please (got {', '.join(sorted(splits))}): "
                  f"their sets share names")
     split = splits.pop()
+    if args.rerun and split == "concealed":
+        sys.exit("--rerun diagnoses sets of a random split; rerun the concealed sets with "
+                 "bench_diagnose.py --config FIELD=VALUE")
     passes, thresholds = pass_table(rows), threshold_table(rows)
     print(f"{len(rows)} sets of the development split {split}\n\n| pass | refitted on | "
           f"decisive on | budget-bound on |\n|---|---|---|---|")
     for p in passes:
         print(f"| {p['pass']} | {len(p['refitted_on'])} | "
               f"{', '.join(p['decisive_on']) or '-'} | {', '.join(p['budget_bound_on']) or '-'} |")
-    print("\n| threshold | default | x0.5: sets whose gates flip | x2: sets whose gates flip |"
-          "\n|---|---|---|---|")
+    print("\n| threshold | default | x0.5: sets whose gates flip | x2: sets whose gates flip "
+          "| off: sets whose gates flip |\n|---|---|---|---|---|")
     for t in thresholds:
         cells = [", ".join(f"{s} ({'/'.join(g)})" for s, g in t[k]["flips"].items()) or "none"
-                 for k in ("x0.5", "x2")]
-        print(f"| {t['field']} | {t['default']:g} | {cells[0]} | {cells[1]} |")
+                 if k in t else "-" for k in MOVES]
+        print(f"| {t['field']} | {t['default']:g} | {' | '.join(cells)} |")
     print(f"\nnot replayed (need reruns): {', '.join(NOT_REPLAYED)}")
     k, n = (int(x) for x in args.part.split("/"))
     if args.rerun:
         reruns = rerun(rows, passes, thresholds, [f for f in args.fields.split(",") if f],
-                       args.reruns_json, (k, n), split, args.paired)
+                       args.reruns_json, (k, n), split, args.paired,
+                       moves=tuple(m for m in args.moves.split(",") if m))
     elif args.reruns_json and args.reruns_json.exists():  # earlier reruns, reported
         reruns = json.loads(args.reruns_json.read_text())["reruns"]
     else:

@@ -51,7 +51,7 @@ from stickslip_jax.compilation_cache import (  # noqa: E402
     cache_dir_from_env,
     use_compilation_cache,
 )
-from stickslip_jax.diagnose import DiagnoseConfig, Verdict, diagnose  # noqa: E402
+from stickslip_jax.diagnose import DiagnoseConfig, Policy, Verdict, diagnose  # noqa: E402
 from stickslip_jax.diagnose.report import diagnosis_dict, form_found  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
@@ -156,15 +156,20 @@ def run_set(folder: Path | str, *, from_profile: bool, max_rounds: int, recs=Non
 
 def config_changes(items: list[str]) -> dict:
     """``FIELD=VALUE`` items as :class:`DiagnoseConfig` changes (values as Python
-    literals); a field it does not have is an error."""
+    literals, or ``inf``); a :class:`Policy` field changes the configuration's policy
+    (``leader_alone_share=inf``: that rule off); a field of neither is an error."""
     fields = {f.name for f in dataclasses.fields(DiagnoseConfig)}
-    changes = {}
+    thresholds = {f.name for f in dataclasses.fields(Policy)}
+    changes, policy = {}, {}
     for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or name not in fields:
+        name, sep, text = item.partition("=")
+        if not sep or name not in fields | thresholds:
             sys.exit(f"--config {item!r}: give FIELD=VALUE with FIELD one of "
-                     f"{', '.join(sorted(fields))}")
-        changes[name] = ast.literal_eval(value)
+                     f"{', '.join(sorted(fields | thresholds))}")
+        value = float(text) if text.strip().lower() in ("inf", "-inf") else ast.literal_eval(text)
+        (policy if name in thresholds else changes)[name] = value
+    if policy:
+        changes["policy"] = dataclasses.replace(changes.get("policy", Policy()), **policy)
     return changes
 
 
@@ -172,7 +177,8 @@ def write_json(args, rows: list[dict]) -> None:
     """The rows so far to ``--json`` (if given)."""
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"rows": rows, "from_profile": args.from_profile,
+        args.json.write_text(json.dumps({"split": "concealed", "rows": rows,
+                                         "from_profile": args.from_profile,
                                          "variants": bool(args.variants),
                                          "reduced": args.reduced,
                                          **({"config": args.config} if args.config else {}),

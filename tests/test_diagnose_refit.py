@@ -15,7 +15,6 @@ from stickslip_jax.diagnose.catalogue import candidate
 from stickslip_jax.diagnose.problem import Problem, baseline_free, recentred
 from stickslip_jax.identify.dataset import Dataset
 from stickslip_jax.identify.parameters import ParameterMap
-from stickslip_jax.noise import noise_sigma
 from stickslip_jax.synthetic import paper_protocol, simulate_set
 from stickslip_jax.testing.concealed import with_effect
 
@@ -40,9 +39,8 @@ def case():
 
 
 def _problem(recs) -> Problem:
-    data = Dataset.from_recordings(recs)
-    sigmas = np.array([noise_sigma(r) for r in data.recordings])
-    return Problem(data, sigmas, {"Ms": 0.0247}, lambda s: None, Budget(None))
+    return Problem.whitened(Dataset.from_recordings(recs), {"Ms": 0.0247}, lambda s: None,
+                            Budget(None))
 
 
 @pytest.mark.parametrize("trial", [False, True], ids=["damped", "gauss_newton_trial"])

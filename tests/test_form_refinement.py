@@ -23,7 +23,6 @@ from stickslip_jax.drive_path import has_closed_form
 from stickslip_jax.identify.dataset import Dataset
 from stickslip_jax.identify.parameters import ParameterSpec
 from stickslip_jax.model.extensions import shaped_saturation
-from stickslip_jax.noise import noise_sigma
 from stickslip_jax.synthetic import DriveSpec, paper_protocol, simulate_set
 
 X = jnp.asarray([-1e3, -3.0, -1.0, -0.4, -1e-6, 0.0, 1e-300, 1e-6, 0.3, 0.99, 1.0, 1.2, 50.0,
@@ -188,9 +187,8 @@ def hard_limited():
 
 
 def _problem(recs, total=None):
-    data = Dataset.from_recordings(recs)
-    sigmas = np.array([noise_sigma(r) for r in data.recordings])
-    return Problem(data, sigmas, {"Ms": 0.0247}, lambda s: None, Budget(total))
+    return Problem.whitened(Dataset.from_recordings(recs), {"Ms": 0.0247}, lambda s: None,
+                            Budget(total))
 
 
 def _accepted(problem, model, rss, stage):

@@ -19,7 +19,6 @@ from stickslip_jax.identify.dataset import Dataset
 from stickslip_jax.identify.solve import gauss_newton_drop
 from stickslip_jax.model.extensions import SensorOutput
 from stickslip_jax.model.hysteresis import PrandtlIshlinskii
-from stickslip_jax.noise import noise_sigma
 from stickslip_jax.synthetic import DriveSpec, paper_protocol, simulate_set
 
 
@@ -99,9 +98,8 @@ def drift_on_another_grid():
 
 
 def _drift_problem(recs, total=None):
-    data = Dataset.from_recordings(recs)
-    sigmas = np.array([noise_sigma(r) for r in data.recordings])
-    return Problem(data, sigmas, {"Ms": 0.0247}, lambda s: None, Budget(total))
+    return Problem.whitened(Dataset.from_recordings(recs), {"Ms": 0.0247}, lambda s: None,
+                            Budget(total))
 
 
 def test_after_an_accepted_entry_the_refined_loop_takes_up_the_grid_residue(

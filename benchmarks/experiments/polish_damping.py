@@ -29,13 +29,11 @@ import stickslip_jax as ss  # noqa: E402
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 
-import numpy as np  # noqa: E402
 
 from stickslip_jax.diagnose import DiagnoseConfig  # noqa: E402
 from stickslip_jax.diagnose.budget import Budget  # noqa: E402
 from stickslip_jax.diagnose.problem import Problem, baseline_free  # noqa: E402
 from stickslip_jax.identify.dataset import Dataset  # noqa: E402
-from stickslip_jax.noise import noise_sigma  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from results_record import write_record  # noqa: E402
@@ -47,8 +45,7 @@ UPDATES = ("classical", "nielsen")
 def polish(recordings, init, fix: dict, update: str) -> dict:
     """The baseline polish of ``recordings`` from ``init`` with ``update``."""
     data = Dataset.from_recordings(recordings)
-    sigmas = np.array([noise_sigma(r) for r in data.recordings])
-    problem = Problem(data, sigmas, fix, lambda s: None, Budget(None))
+    problem = Problem.whitened(data, fix, lambda s: None, Budget(None))
     program = problem.program(init, baseline_free(init, data, fix), {})
     t0 = time.perf_counter()
     _, cost, out = problem.fit_from(program, program.pmap.zeros(), label="baseline polish",

@@ -30,6 +30,7 @@ from ..identify.solve import (
 from ..identify.step_names import dynamics_names, friction_names, without_absent_directions
 from ..identify.steps import JOINT_GN_TOL
 from ..model.actuator import Actuator
+from ..noise import noise_sigma
 from ..program_store import stored_jit
 from ..significance import Significance
 from ..stepping import StepPlan
@@ -254,6 +255,15 @@ class Problem:
         self.significance: Significance | None = None
         """The tolerance of practical significance (:mod:`~stickslip_jax.significance`),
         set once the baseline's numerical error is known."""
+
+    @classmethod
+    def whitened(cls, data: Dataset, fix: dict, echo=None, budget: Budget | None = None,
+                 **options) -> Problem:
+        """The problem of ``data``, each recording whitened by its own noise level
+        estimated from it (:func:`~stickslip_jax.noise.noise_sigma`, [m]); ``options`` as
+        the constructor's (``gauss_newton_trial``)."""
+        sigmas = np.array([noise_sigma(r) for r in data.recordings])
+        return cls(data, sigmas, fix, echo, budget, **options)
 
     def plan_factor(self, act: Actuator, plan: StepPlan | None = None) -> float:
         """Cost per sample of simulating ``act`` at ``plan`` (default: the plan it needs

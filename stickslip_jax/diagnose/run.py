@@ -108,7 +108,7 @@ from ..identify.solve import gauss_newton_drop
 from ..identify.steps import STEPS, identify
 from ..model.actuator import Actuator
 from ..model.hysteresis import PrandtlIshlinskii
-from ..noise import noise_sigma, noise_sigma_relative_se
+from ..noise import noise_sigma_relative_se
 from ..precision import require_float64
 from ..significance import Significance
 from .budget import UNIT, Budget
@@ -517,10 +517,9 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         fix["Ms"] = float(init.slider.Ms)
         notes.append(f"Ms held at {fix['Ms']:g} kg (position data fix only ratios of the "
                      f"masses, dampings and stiffnesses).")
-    sigmas = np.array([noise_sigma(r) for r in data.recordings])
-    problem = Problem(data, sigmas, fix, say, budget,
-                      gauss_newton_trial=config.gauss_newton_trial)
-    n_obs = problem.n_obs
+    problem = Problem.whitened(data, fix, say, budget,
+                               gauss_newton_trial=config.gauss_newton_trial)
+    n_obs, sigmas = problem.n_obs, problem.sigmas
     say(f"[budget] {_work_estimate(problem, init, work_budget)}")
 
     # 1. Baseline.
