@@ -82,6 +82,44 @@ def test_the_passes_run_in_order_and_each_refit_names_its_pass(monkeypatch):
     assert by["stribeck"] == ("", CandidateStatus.NO_PROMISE)
 
 
+def test_after_an_explaining_refit_a_competitor_is_refitted_only_if_it_could_rival_it(
+        monkeypatch):
+    # The leader's refit removes 97 % of the excess; the competitor ranks at half the
+    # leader (a first refit by its share). Its sizings' bound on its refit decides
+    # whether it is refitted after the leader; a leader whose own sizing removed
+    # nearly all of the excess is refitted alone whatever that bound.
+    excess = BASE - N
+
+    def run(leader_drop, drop_free):
+        ranked = [CandidateResult("rate_dependent_hysteresis", score=0.8 * excess,
+                                  sizing=SizingOutcome(drop=leader_drop * excess,
+                                                       drop_free=leader_drop * excess,
+                                                       free_converged=True)),
+                  CandidateResult("creep", score=0.45 * excess,
+                                  sizing=SizingOutcome(drop=0.25 * excess,
+                                                       drop_free=drop_free * excess,
+                                                       free_converged=True))]
+        rnd, calls = _round(ranked, {"rate_dependent_hysteresis": 0.97, "creep": 0.4},
+                            monkeypatch)
+        _refit_round(rnd, DEFAULT_PASSES)
+        return calls, ranked[1]
+    # Bound max(0.45, 2·0.3 − 0.25) of the excess, below the 0.97 less the penalty it
+    # would need: set aside, no refit spent.
+    calls, creep = run(0.85, 0.3)
+    assert calls == ["rate_dependent_hysteresis"]
+    assert creep.status is CandidateStatus.CANNOT_RIVAL and "rival" in creep.note
+    # Bound 2·0.7 − 0.25 = 1.15 of the excess: it could rival the leader, so it gets
+    # its first refit.
+    calls, creep = run(0.85, 0.7)
+    assert calls == ["rate_dependent_hysteresis", "creep"]
+    assert creep.refit_pass == "first"
+    # The same competitor beside a leader whose sizing alone removed 95 % (at least
+    # leader_alone_share, and creep's sizing below leader_alone_lead of it): alone.
+    calls, creep = run(0.95, 0.7)
+    assert calls == ["rate_dependent_hysteresis"]
+    assert creep.status is CandidateStatus.NOT_REFITTED and "alone" in creep.note
+
+
 def test_a_configuration_without_a_pass_is_its_ablation(monkeypatch):
     ranked = _ranked(("external_load", 1e5, 4e5), ("creep", 1e4, 1e4))
     rnd, calls = _round(ranked, {"creep": 0.9}, monkeypatch)

@@ -164,13 +164,19 @@ class Policy:
     competitors little to explain. Tuned on the concealed sets (competitors' refits
     ended 25-45 points below such a leader's); no statistical derivation yet. Ablation:
     the first refits flip on 8 sets at half (a leader refitted alone), none at twice;
-    rerun on 6 of the 8, none named another entry or gave another verdict."""
+    rerun on 6 of the 8, none named another entry or gave another verdict. Switched
+    off (no leader alone), the first refits change on 3 of 91 development sets; rerun
+    with it off, all three named the same entry with the same verdict and final cost,
+    and two spent one refit more (their work +32 % and +42 %): what the rule buys is
+    work, not a decision. What it risks: a competitor set aside here is never named
+    indistinguishable from the leader (none would have been on those three)."""
 
     leader_alone_lead: float = 0.75
     """See :attr:`leader_alone_share`: the share of the leader's sizing drop that a
     competitor's sizing must reach to keep its first refit beside a leader that
     removed nearly the whole excess. Tuned on the concealed sets; no statistical
-    derivation yet. Ablation: no gate flips on any set at half or twice."""
+    derivation yet. Ablation: no gate flips on any set at half or twice, nor with this
+    condition switched off."""
 
     later_score_share: float = 0.10
     """After an acceptance, an entry is sized in the next round only when its ``|S|``
