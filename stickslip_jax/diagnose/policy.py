@@ -169,7 +169,7 @@ class Policy:
     competitors little to explain. Tuned on the concealed sets (competitors' refits
     ended 25-45 points below such a leader's); no statistical derivation yet. Ablation:
     the first refits flip on 8 sets at half (a leader refitted alone), none at twice;
-    rerun on 6 of the 8, none named another entry or gave another verdict. Switched
+    rerun on all 8, none named another entry or gave another verdict. Switched
     off (no leader alone), the first refits change on 3 of 91 development sets; rerun
     with it off, all three named the same entry with the same verdict and final cost,
     and two spent one refit more (their work +32 % and +42 %): what the rule buys is
