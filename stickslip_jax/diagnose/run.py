@@ -293,8 +293,11 @@ def _refined_after(problem: Problem, act: Actuator, rss: float,
 def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
     """Phase 2: each recording's residual analysis, the flagged ones, and the hints
     the probes use (shared residual peaks, the largest voltage slew, the shortest and
-    longest recording)."""
+    longest recording, and each recording's model output, residual and noise, for
+    entries that start a quantity per recording from them)."""
     data, sigmas = problem.data, problem.sigmas
+    counts = np.asarray(data.mask).sum(axis=1).astype(int)
+    outputs = tuple(np.asarray(q0[i, :n], dtype=float) for i, n in enumerate(counts))
     analyses = [analyse_recording(r, q0[i], sigmas[i]) for i, r in enumerate(data.recordings)]
     mismatch = mismatch_entries(analyses)
     hints = {"peaks_Hz": residual_peaks(data.recordings, q0, sigmas,
@@ -306,7 +309,11 @@ def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
                                  for r in data.recordings),
              "sample_interval_s": min(float(r.dt) for r in data.recordings),
              "recording_durations_s": (min(r.n * r.dt for r in data.recordings),
-                                       max(r.n * r.dt for r in data.recordings))}
+                                       max(r.n * r.dt for r in data.recordings)),
+             "outputs_m": outputs,
+             "residuals_m": tuple(np.asarray(data.measured[i, :n], dtype=float) - outputs[i]
+                                  for i, n in enumerate(counts)),
+             "noise_m": tuple(float(x) for x in sigmas)}
     return analyses, mismatch, hints
 
 

@@ -143,3 +143,13 @@ class Dataset:
     def subset(self, keep) -> Dataset:
         """The dataset of the recordings for which ``keep(recording)`` is true."""
         return Dataset.from_recordings([r for r in self.recordings if keep(r)])
+
+
+def check_readable(actuator, data: Dataset) -> None:
+    """Raise ValueError when ``actuator``'s sensor holds quantities per recording
+    (:meth:`~stickslip_jax.model.base.AbstractOutputMap.recordings`) for another
+    number of recordings than ``data``'s: its recording r would read another's."""
+    count = actuator.output_map.recordings()
+    if count and count != len(data):
+        raise ValueError(f"the model's sensor holds a quantity per recording for {count} "
+                         f"recordings, the dataset has {len(data)}: fit it on this set")

@@ -16,7 +16,7 @@ import numpy as np
 from ..noise import noise_sigma
 from ..simulate import checked_batching, model_output, over_rows, plan_steps
 from ..stepping import Stepping, StepPlan
-from .dataset import Dataset
+from .dataset import Dataset, check_readable
 from .parameters import ParameterMap
 from .sensitivities import RecordingPrograms
 
@@ -83,10 +83,11 @@ def simulate_dataset(actuator, data: Dataset, *, plan: StepPlan | None = None,
     """
     batching = checked_batching(batching or default_batching())
     plan = dataset_plan(actuator, data) if plan is None else plan
+    check_readable(actuator, data)
 
-    def one(u, dt, drive):
+    def one(u, dt, drive, recording):
         q = model_output(actuator, u, dt, drive, plan)
-        return actuator.output_map(dt * jnp.arange(u.shape[0]), q)
+        return actuator.output_map.read(dt * jnp.arange(u.shape[0]), q, recording)
 
     total = data.voltages.shape[1]
     buckets = data.buckets or ((tuple(range(len(data))), total),)
@@ -94,7 +95,8 @@ def simulate_dataset(actuator, data: Dataset, *, plan: StepPlan | None = None,
     for idx, length in buckets:
         sel = np.asarray(idx)
         drives = jax.tree_util.tree_map(lambda x, s=sel: x[s], data.drives)
-        args = (jnp.asarray(data.voltages[sel, :length]), jnp.asarray(data.dt[sel]), drives)
+        args = (jnp.asarray(data.voltages[sel, :length]), jnp.asarray(data.dt[sel]), drives,
+                jnp.asarray(sel, dtype=jnp.int32))
         q = over_rows(one, args, batching)
         parts.append(jnp.pad(q, ((0, 0), (0, total - length)), mode="edge"))
         order += list(idx)

@@ -43,7 +43,7 @@ import numpy as np
 from ..program_store import stored_jit
 from ..simulate import rest_carry
 from ..stepping import StepPlan, sample_stepper
-from .dataset import Dataset
+from .dataset import Dataset, check_readable
 from .parameters import ParameterSpec, parameter_getter
 from .solve import jacobian_pool, jacobian_threads
 
@@ -54,10 +54,11 @@ dataset's longest pays for at most ``CHUNK − 1`` samples past its end; skippin
 by sample instead costs each padded sample a copy of the whole tangent state."""
 
 
-def _row_output(actuator, voltage, n, dt, drive, plan: StepPlan):
+def _row_output(actuator, voltage, n, dt, drive, recording, plan: StepPlan):
     """``(output, q)`` of one recording: the model output [m] and the slider position q
     [m] it reads (the sensor's input), each (T,). ``voltage`` [V] (T,) padded with its
-    last value, ``n`` real samples; past them q repeats its last real value (as
+    last value, ``n`` real samples, ``recording`` its index in the dataset (what the
+    sensor reads it with); past them q repeats its last real value (as
     :class:`~.dataset.Dataset` pads the measurement). The same arithmetic as
     :func:`~.residuals.simulate_dataset` on the real samples."""
     carry, q0 = rest_carry(actuator, voltage[0], drive)
@@ -78,22 +79,22 @@ def _row_output(actuator, voltage, n, dt, drive, plan: StepPlan):
     q = jnp.concatenate([q0[None], qs.reshape(-1)[: t - 1]])
     k = jnp.arange(t)
     q = jnp.where(k < n, q, q[n - 1])
-    return actuator.output_map(dt * k, q), q
+    return actuator.output_map.read(dt * k, q, recording), q
 
 
 @stored_jit
-def _row(actuator, voltage, n, dt, drive, plan):
-    return _row_output(actuator, voltage, n, dt, drive, plan)
+def _row(actuator, voltage, n, dt, drive, recording, plan):
+    return _row_output(actuator, voltage, n, dt, drive, recording, plan)
 
 
 @stored_jit
-def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
+def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, recording, plan):
     """``(output (T,), d output (T, W), q (T,))``: the output, its derivatives along the
     W tangents (leading axis of every leaf of ``tangents``) of the ``perturbed`` leaves,
     and the position the sensor read (:func:`_row_output`)."""
 
     def output(p):
-        return _row_output(eqx.combine(p, fixed), voltage, n, dt, drive, plan)
+        return _row_output(eqx.combine(p, fixed), voltage, n, dt, drive, recording, plan)
 
     width = jax.tree.leaves(tangents)[0].shape[0]
     if width == 1:
@@ -107,20 +108,21 @@ def _row_with_tangents(perturbed, fixed, tangents, voltage, n, dt, drive, plan):
 
 
 @stored_jit
-def _sensor_tangents(perturbed, fixed, tangents, t, q):
+def _sensor_tangents(perturbed, fixed, tangents, t, q, recordings):
     """``d output (R, T, W)``: the derivatives of the output map's output at times ``t``
-    [s] (R, T) and read positions ``q`` [m] (R, T) along the W tangents (leading axis)
-    of its ``perturbed`` leaves, the positions held. What a column that moves only the
-    sensor's quantities needs: nothing of the mechanics depends on them."""
+    [s] (R, T) and read positions ``q`` [m] (R, T) of the dataset's ``recordings``
+    (their indices, (R,)) along the W tangents (leading axis) of its ``perturbed``
+    leaves, the positions held. What a column that moves only the sensor's quantities
+    needs: nothing of the mechanics depends on them."""
 
-    def output(p, t, q):
-        return eqx.combine(p, fixed)(t, q)
+    def output(p, t, q, b):
+        return eqx.combine(p, fixed).read(t, q, b)
 
-    def row(t, q):
-        return jax.vmap(lambda d: jax.jvp(lambda p: output(p, t, q), (perturbed,), (d,))[1],
-                        out_axes=-1)(tangents)
+    def row(t, q, b):
+        return jax.vmap(lambda d: jax.jvp(lambda p: output(p, t, q, b), (perturbed,),
+                                          (d,))[1], out_axes=-1)(tangents)
 
-    return jax.vmap(row)(t, q)
+    return jax.vmap(row)(t, q, recordings)
 
 
 def sensor_only_columns(tangents) -> np.ndarray:
@@ -199,7 +201,8 @@ class RecordingPrograms:
             (jnp.asarray(data.voltages[b]),
              jnp.asarray(int(data.mask[b].sum()), dtype=jnp.int32),
              jnp.asarray(data.dt[b]),
-             jax.tree.map(lambda x, b=b: jnp.asarray(np.asarray(x)[b]), data.drives))
+             jax.tree.map(lambda x, b=b: jnp.asarray(np.asarray(x)[b]), data.drives),
+             jnp.asarray(b, dtype=jnp.int32))
             for b in range(len(data))]
         self._length = np.asarray(data.mask.sum(axis=1), dtype=int)
         self._compiled: set = set()
@@ -237,6 +240,7 @@ class RecordingPrograms:
     def _values(self, actuator, plan: StepPlan, rows) -> tuple[np.ndarray, np.ndarray]:
         """``(outputs, positions)`` [m] (R, T) of the recordings ``rows`` through the
         value-only program: the model outputs and the positions the sensor read."""
+        check_readable(actuator, self.data)
         key = ("value", plan, jax.tree.structure(actuator))
         done = self._run(self._order(rows), lambda b: _row(actuator, *self._rows[b], plan),
                          key)
@@ -255,6 +259,7 @@ class RecordingPrograms:
         most half :attr:`width` of those go one per call, through the program of a
         single plain JVP (:func:`tangents_per_call`); more, :attr:`width` per call."""
         rows = self._all(rows)
+        check_readable(actuator, self.data)
         perturbed, fixed = eqx.partition(actuator, self.mask)
         perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
         tangents = jax.tree.map(lambda x: np.asarray(x, dtype=float), tangents)
@@ -316,7 +321,8 @@ class RecordingPrograms:
             lambda x: np.concatenate([x, np.zeros((width - c,) + x.shape[1:])]), cut)
         times = np.asarray(self.data.dt)[rows, None] * np.arange(positions.shape[1])
         out = _sensor_tangents(perturbed.output_map, fixed.output_map, padded,
-                               jnp.asarray(times), jnp.asarray(positions))
+                               jnp.asarray(times), jnp.asarray(positions),
+                               jnp.asarray(rows, dtype=jnp.int32))
         return np.asarray(out)[:, :, :c]
 
 

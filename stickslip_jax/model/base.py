@@ -298,3 +298,16 @@ class AbstractOutputMap(eqx.Module):
     @abc.abstractmethod
     def __call__(self, t: Float[Array, " T"], q: Float[Array, " T"]) -> Float[Array, " T"]:
         """Measured output [m] at times ``t`` [s] for model output ``q`` [m]."""
+
+    def read(self, t: Float[Array, " T"], q: Float[Array, " T"],
+             recording=None) -> Float[Array, " T"]:
+        """The measured output of the dataset's recording ``recording`` (its index, an
+        integer that may be traced; None for a trace of no dataset): a sensor with a
+        quantity of its own per recording (:meth:`recordings`) reads each with it. By
+        default every recording alike: ``self(t, q)``."""
+        return self(t, q)
+
+    def recordings(self) -> int:
+        """How many recordings its per-recording quantities are for (0: none; then it
+        reads any dataset)."""
+        return 0

@@ -625,8 +625,12 @@ class SensorOutput(AbstractOutputMap):
     The periodic error (none by default) is the interferometer's nonlinearity (mixing
     of its polarisations or frequencies): periodic in the position it reads, of period
     ``P`` (:data:`HENE_FRINGE_M`) and its harmonics, whatever its shape within the
-    period; its phase is that of ``p = 0`` (each recording's start in the simulated
-    protocols), shared by the recordings.
+    period. Its phase is that of ``p = 0`` where every recording starts at one point
+    of the fringe (the simulated protocols); a real set's recordings each start at
+    another, ``o_r`` [m] further along it (``fringe_offsets``, one per recording of
+    the dataset, read by :meth:`read`): the error of recording r is the series at
+    ``p + o_r``. Only the offsets' differences show (the coefficients take up a shift
+    of them all), so a fit holds one of them.
 
     The amplitudes and coefficients are tuples of scalars, so that a fit can free each
     one (``eqx.tree_at`` addresses tuple members); the time constants and the period
@@ -634,7 +638,7 @@ class SensorOutput(AbstractOutputMap):
 
     Attributes: ``delay`` [s] (≥ 0), ``drift`` [m/s], ``settling`` a_i [m],
     ``settle_times`` T_i [s], ``periodic`` ``(c_1, s_1, c_2, s_2, ...)`` [m],
-    ``period`` P [m].
+    ``period`` P [m], ``fringe_offsets`` ``(o_1, ..., o_R)`` [m] (none by default).
     """
 
     delay: Float[Array, ""]
@@ -643,15 +647,17 @@ class SensorOutput(AbstractOutputMap):
     settle_times: Float[Array, " k"]
     periodic: tuple
     period: Float[Array, ""]
+    fringe_offsets: tuple
 
     def __init__(self, delay=0.0, drift=0.0, settling=(), settle_times=(), periodic=(),
-                 period=HENE_FRINGE_M):
+                 period=HENE_FRINGE_M, fringe_offsets=()):
         self.delay = _f(delay)
         self.drift = _f(drift)
         self.settling = tuple(_f(a) for a in settling)
         self.settle_times = jnp.asarray(settle_times, dtype=float).reshape(-1)
         self.periodic = tuple(_f(c) for c in periodic)
         self.period = _f(period)
+        self.fringe_offsets = tuple(_f(o) for o in fringe_offsets)
         if len(self.settling) != self.settle_times.size:
             raise ValueError(f"SensorOutput needs one settling amplitude per time constant, "
                              f"got {len(self.settling)} and {self.settle_times.size}")
@@ -678,13 +684,32 @@ class SensorOutput(AbstractOutputMap):
                        + coef[:, 1].reshape(k.shape) * jnp.sin(phase), axis=-1)
 
     def __call__(self, t, q):
+        return self._reading(t, q, None)
+
+    def read(self, t, q, recording=None):
+        """The reading of the dataset's recording ``recording`` (its index; None: a
+        trace of no dataset, read at offset 0): the periodic error at its own
+        ``fringe_offsets`` entry."""
+        if recording is None or not _count(self.fringe_offsets):
+            return self._reading(t, q, None)
+        offsets = jnp.reshape(jnp.asarray(self.fringe_offsets), -1)
+        return self._reading(t, q, offsets[recording])
+
+    def recordings(self) -> int:
+        return _count(self.fringe_offsets)
+
+    def _reading(self, t, q, offset):
         p = delayed(t, q, self.delay)
         out = p + self.drift_at(t)
-        coefficients = (len(self.periodic) if isinstance(self.periodic, tuple)
-                        else self.periodic.size)  # (one array: periodic_error)
-        if coefficients:  # none: the sum of before, to the last bit
-            out = out + self.periodic_error(p)
+        if _count(self.periodic):  # none: the sum of before, to the last bit
+            out = out + self.periodic_error(p if offset is None else p + offset)
         return out
+
+
+def _count(values) -> int:
+    """Elements of a tuple of scalars, or of the one array a caller set in its place
+    (``eqx.tree_at`` of a whole vector quantity)."""
+    return len(values) if isinstance(values, tuple) else int(jnp.size(values))
 
 
 class ExponentialDrift(AbstractOutputMap):
@@ -706,23 +731,26 @@ class ExponentialDrift(AbstractOutputMap):
 
 class PeriodicSensorError(AbstractOutputMap):
     """Periodic nonlinearity of a displacement interferometer (mixing of the two
-    polarisations): ``q + amplitude·sin(2π·q/period)``. The test generators' form of
-    it, kept apart from :class:`SensorOutput`'s so that the data it makes are not the
-    fitted model's own.
+    polarisations): ``q + amplitude·sin(2π·(q + offset)/period)``. The test
+    generators' form of it, kept apart from :class:`SensorOutput`'s so that the data it
+    makes are not the fitted model's own.
 
     Attributes: ``amplitude`` [m], ``period`` [m] (λ/2 = 316.4 nm for a HeNe laser
-    in a single-pass Michelson).
+    in a single-pass Michelson), ``offset`` [m]: where along the fringe the
+    recording starts (0 by default).
     """
 
     amplitude: Float[Array, ""]
     period: Float[Array, ""]
+    offset: Float[Array, ""]
 
-    def __init__(self, amplitude, period=316.4e-9):
+    def __init__(self, amplitude, period=316.4e-9, offset=0.0):
         self.amplitude = _f(amplitude)
         self.period = _f(period)
+        self.offset = _f(offset)
 
     def __call__(self, t, q):
-        return q + self.amplitude * jnp.sin(2.0 * jnp.pi * q / self.period)
+        return q + self.amplitude * jnp.sin(2.0 * jnp.pi * (q + self.offset) / self.period)
 
 
 class ChainedOutput(AbstractOutputMap):
@@ -734,3 +762,11 @@ class ChainedOutput(AbstractOutputMap):
         for m in self.maps:
             q = m(t, q)
         return q
+
+    def read(self, t, q, recording=None):
+        for m in self.maps:
+            q = m.read(t, q, recording)
+        return q
+
+    def recordings(self) -> int:
+        return max((m.recordings() for m in self.maps), default=0)

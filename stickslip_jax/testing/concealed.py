@@ -160,3 +160,20 @@ def with_variant(act: Actuator, variant: str) -> Actuator:
         return eqx.tree_at(lambda a: a.output_map, act, ChainedOutput((
             PeriodicSensorError(3e-9), PeriodicSensorError(1.2e-9, 316.4e-9 / 3))))
     raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
+
+
+def read_from_fringe_starts(recordings, sensor_at, *, noise_m: float, seed: int,
+                            fringe_m: float = 316.4e-9):
+    """``recordings`` (noise-free) as a real set's interferometer reads them, each
+    starting at another point of its fringe: recording i's positions through the
+    output map ``sensor_at(o_i)``, the offsets o_i drawn uniformly over
+    ``[0, fringe_m)`` [m], then white noise of ``noise_m`` [m]. Returns the recordings
+    and the offsets [m]."""
+    rng = np.random.default_rng(seed)
+    offsets = rng.uniform(0.0, fringe_m, len(recordings))
+    out = []
+    for rec, offset in zip(recordings, offsets, strict=True):
+        t = rec.dt * np.arange(rec.n)
+        read = np.asarray(sensor_at(float(offset))(t, np.asarray(rec.position_m)))
+        out.append(rec.with_position_m(read + noise_m * rng.standard_normal(rec.n)))
+    return out, offsets

@@ -72,7 +72,9 @@ class CatalogueEntry(abc.ABC):
         nonlinear parameter; ``hints`` what the located residual suggests
         (``peaks_Hz``: shared residual peaks [Hz]; ``max_slew_V_s``: the fastest
         voltage slope of the commands [V/s]; ``sample_interval_s``: the shortest
-        sample interval [s]; any may be missing)."""
+        sample interval [s]; ``outputs_m``, ``residuals_m``: each recording's model
+        output and measured − model [m] on its samples, and ``noise_m`` its noise
+        level [m], where the model stands; any may be missing)."""
 
     @abc.abstractmethod
     def attach(self, act: Actuator, strength: float,

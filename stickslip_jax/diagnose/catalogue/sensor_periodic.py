@@ -13,14 +13,24 @@ model beyond the noise gets one more harmonic as its refined form, up to
 :data:`MAX_HARMONICS`.
 
 The phase is that of the read position 0: each recording's first sample in the
-simulated protocols, one phase for the set. A real set, where every recording starts
-at another fringe phase, needs a phase per recording (not done).
+simulated protocols, one phase for the set. In a real set every recording starts at
+another point of the fringe. When the residual says so, the entry also starts a fit
+with one fringe offset per recording (:class:`~stickslip_jax.model.extensions.
+SensorOutput`'s ``fringe_offsets``, :func:`fringe_start`): the residual of each
+recording regressed on the fringe's harmonics at the positions the model reads (a
+constant and a cubic in time beside them), the recordings' coefficients rotated onto
+one another, and the offsets offered where they lower the regression's BIC below that
+of one phase for all (ln N per offset; the misfits scaled by the rotated fit's
+overdispersion, so that another physics' misfit projected on the fringe is not taken
+for phases). The sizing then starts from whichever of the
+two costs least (:func:`~stickslip_jax.diagnose.sizing.first_order_start`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 from typing import final
 
 import equinox as eqx
@@ -75,9 +85,170 @@ def _coefficient(index: int):
     return lambda a: a.output_map.periodic[index]
 
 
-def _specs(count: int, scale: float) -> dict[str, ParameterSpec]:
-    return {coefficient_name(i): ParameterSpec(_coefficient(i), "linear", scale, "m")
-            for i in range(count)}
+def _offset(index: int):
+    return lambda a: a.output_map.fringe_offsets[index]
+
+
+def offset_name(recording: int) -> str:
+    """The reported name of recording ``recording``'s fringe offset."""
+    return f"fringe_offset_{recording}"
+
+
+def _specs(count: int, scale: float, free_offsets=()) -> dict[str, ParameterSpec]:
+    specs = {coefficient_name(i): ParameterSpec(_coefficient(i), "linear", scale, "m")
+             for i in range(count)}
+    # θ = 1 of an offset: one radian of the fringe.
+    specs.update({offset_name(r): ParameterSpec(_offset(r), "linear",
+                                                HENE_FRINGE_M / (2.0 * math.pi), "m")
+                  for r in free_offsets})
+    return specs
+
+
+@dataclass(frozen=True)
+class FringeStart:
+    """Where a fit with one fringe offset per recording starts (:func:`fringe_start`):
+    the periodic error's ``coefficients`` [m] at the offsets' origin, each recording's
+    ``offsets`` [m], the recordings whose offsets a fit frees (``free``: those moving
+    a fringe, but the ``reference``, whose offset it holds), and the regression's
+    (quasi-likelihood) BIC gain over one phase for all (``bic_gain``, > 0 where it was
+    offered)."""
+
+    coefficients: tuple[float, ...]
+    offsets: tuple[float, ...]
+    free: tuple[int, ...]
+    reference: int
+    bic_gain: float
+
+
+TIME_TREND_DEGREE = 3
+"""Degree of the polynomial in time fitted beside the fringe's harmonics in each
+recording's regression: what the residual holds of smooth misfit (creep, drift) is not
+taken for a phase."""
+
+ANGLE_GRID = 720
+"""Angles tried per recording when rotating its fringe coefficients onto the others'
+(a half degree apart; the best is refined by the fit)."""
+
+
+def _moves_a_fringe(output: np.ndarray) -> bool:
+    return output.size > 0 and float(np.ptp(output)) >= HENE_FRINGE_M
+
+
+def fringe_reference(hints: dict) -> int | None:
+    """The recording whose fringe offset a fit holds: of those moving a fringe, the one
+    with the most samples per noise variance (what fixes the fringe's phase best; the
+    positions and noise decide, not the residual, so successive fits agree). None
+    without the hints or such a recording."""
+    outputs, noise = hints.get("outputs_m"), hints.get("noise_m")
+    if not outputs or not noise:
+        return None
+    weight = [q.size / s**2 if _moves_a_fringe(q) else -1.0
+              for q, s in zip(outputs, noise, strict=True)]
+    best = int(np.argmax(weight))
+    return best if weight[best] > 0 else None
+
+
+def _rotation(angle: np.ndarray, harmonics: int) -> np.ndarray:
+    """Matrices (…, 2H, 2H) taking the coefficients ``(c_k, s_k)`` of an error read
+    ``angle`` radians of the fringe later (``e(p + o)``, ``angle = 2πo/P``) from those
+    at the origin: block k a rotation by ``k·angle``."""
+    angle = np.asarray(angle, dtype=float)[..., None]
+    k = np.arange(1, harmonics + 1)
+    cos, sin = np.cos(k * angle), np.sin(k * angle)
+    out = np.zeros(angle.shape[:-1] + (2 * harmonics, 2 * harmonics))
+    for j in range(harmonics):
+        out[..., 2 * j, 2 * j] = cos[..., j]
+        out[..., 2 * j, 2 * j + 1] = sin[..., j]
+        out[..., 2 * j + 1, 2 * j] = -sin[..., j]
+        out[..., 2 * j + 1, 2 * j + 1] = cos[..., j]
+    return out
+
+
+def _fringe_regression(output: np.ndarray, residual: np.ndarray, sigma: float,
+                       harmonics: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(w, info)``: one recording's residual [m] regressed on the fringe's harmonics
+    at the positions ``output`` [m] (a constant and a polynomial in time beside them),
+    its coefficients ``(c_k, s_k)`` [m] and their information matrix [1/m²]."""
+    n = output.size
+    theta = 2.0 * math.pi * output / HENE_FRINGE_M
+    k = np.arange(1, harmonics + 1)
+    fringe = np.stack([f(kk * theta) for kk in k for f in (np.cos, np.sin)], axis=1)
+    trend = np.polynomial.legendre.legvander(np.linspace(-1.0, 1.0, n), TIME_TREND_DEGREE)
+    basis, _ = np.linalg.qr(trend)
+    f_perp = fringe - basis @ (basis.T @ fringe)
+    y_perp = residual - basis @ (basis.T @ residual)
+    w = np.linalg.lstsq(f_perp, y_perp, rcond=None)[0]
+    return w, f_perp.T @ f_perp / sigma**2
+
+
+def _aligned(ws, infos, angles, harmonics):
+    """The coefficients and information matrices rotated back to the origin by each
+    recording's ``angles``, their information-weighted mean and the misfit of the
+    recordings to it (Σ (w − w̄)ᵀ I (w − w̄))."""
+    rot = _rotation(angles, harmonics)
+    back = np.einsum("rji,rj->ri", rot, ws)  # Rᵀ w
+    info = np.einsum("rji,rjk,rkl->ril", rot, infos, rot)  # Rᵀ I R
+    mean = np.linalg.solve(info.sum(axis=0), np.einsum("rij,rj->i", info, back))
+    d = back - mean
+    return mean, float(np.einsum("ri,rij,rj->", d, info, d))
+
+
+def fringe_start(hints: dict, harmonics: int = HARMONICS) -> FringeStart | None:
+    """A start with one fringe offset per recording, from ``hints`` (the located
+    model's outputs, residuals and noise), where the residual asks for one: each
+    recording moving a fringe regressed on the fringe's ``harmonics``
+    (:func:`_fringe_regression`); each recording's coefficients rotated onto the
+    reference's (:func:`fringe_reference`), then onto their mean, over a grid of
+    :data:`ANGLE_GRID` angles. The offsets are offered when, by the BIC of the
+    regression (ln N per offset, N the samples of all recordings; the misfits divided
+    by the rotated fit's misfit per degree of freedom where that exceeds 1, as
+    quasi-likelihood criteria do for overdispersed data), the rotated recordings fit
+    one set of coefficients better than one phase for all does. None otherwise."""
+    reference = fringe_reference(hints)
+    if reference is None:
+        return None
+    outputs, residuals, noise = hints["outputs_m"], hints["residuals_m"], hints["noise_m"]
+    used = [r for r, q in enumerate(outputs) if _moves_a_fringe(q)]
+    if len(used) < 2:
+        return None
+    fits = [_fringe_regression(outputs[r], residuals[r], noise[r], harmonics) for r in used]
+    ws = np.stack([w for w, _ in fits])
+    infos = np.stack([i for _, i in fits])
+    _, shared = _aligned(ws, infos, np.zeros(len(used)), harmonics)
+    grid = np.linspace(0.0, 2.0 * math.pi, ANGLE_GRID, endpoint=False)
+    rot = _rotation(grid, harmonics)  # (G, 2H, 2H)
+    target = ws[used.index(reference)]
+    angles = np.zeros(len(used))
+    for _ in range(2):  # onto the reference, then onto the mean of the rotated ones
+        for i in range(len(used)):
+            # The angle at which recording i's coefficients, rotated back, sit nearest
+            # the target in its own information metric.
+            back = np.einsum("gji,j->gi", rot, ws[i])
+            d = back - target
+            angles[i] = grid[int(np.argmin(np.einsum("gi,ij,gj->g", d, infos[i], d)))]
+        target, rotated = _aligned(ws, infos, angles, harmonics)
+    # The BIC of m − 1 offsets more than one phase for all, the misfits scaled by the
+    # rotated model's overdispersion (QBIC): what another physics' misfit projects on
+    # the fringe's columns differs in amplitude from recording to recording, where an
+    # interferometer's error has one; its rotated misfit then stays far above its
+    # degrees of freedom, and the rotation's gain counts that much less.
+    m, log_n = len(used), math.log(sum(q.size for q in outputs))
+    dispersion = max(1.0, rotated / ((2 * harmonics - 1) * (m - 1)))
+    gain = (shared - rotated) / dispersion - (m - 1) * log_n
+    if not gain > 0:
+        return None
+    offsets = np.zeros(len(outputs))
+    offsets[used] = angles * HENE_FRINGE_M / (2.0 * math.pi)
+    return FringeStart(tuple(float(c) for c in target), tuple(float(o) for o in offsets),
+                       tuple(r for r in used if r != reference), reference, float(gain))
+
+
+def with_fringe_offsets(act: Actuator, start: FringeStart) -> Actuator:
+    """``act`` (its sensor's other quantities kept) with ``start``'s coefficients and
+    offsets."""
+    act = with_sensor(act)
+    return eqx.tree_at(lambda a: a.output_map, act, dataclasses.replace(
+        act.output_map, periodic=start.coefficients, fringe_offsets=start.offsets))
 
 
 @final
@@ -103,8 +274,9 @@ class SensorPeriodicEntry(CatalogueEntry):
     def probes(self, act, hints):
         # One spec for all: the coefficients are one vector quantity of the score test.
         spec = ParameterSpec(lambda a: a.output_map.periodic, "linear", PROBE_SCALE_M, "m")
+        fringe = fringe_start(hints)  # a start with an offset per recording, if asked
         return [Probe(f"periodic {coefficient_name(i).removeprefix('periodic_')}",
-                      with_periodic, spec, 0, {"index": i})
+                      with_periodic, spec, 0, {"index": i, "fringe": fringe})
                 for i in range(2 * HARMONICS)]
 
     def attach(self, act, strength, probe):
@@ -113,15 +285,34 @@ class SensorPeriodicEntry(CatalogueEntry):
         new = _with_coefficients(with_sensor(act), start)
         return new, _specs(len(start), probe.strength_scale(strength))
 
+    def attach_options(self, act, strength, probe):
+        """The probe's coefficient at ``strength`` (one phase for the set), and, where
+        the residual asked for them (:func:`fringe_start`), the offsets per recording
+        with the coefficients their regression found."""
+        options = [self.attach(act, strength, probe)]
+        fringe = probe.setting.get("fringe")
+        if fringe is not None:
+            scale = float(np.max(np.abs(fringe.coefficients))) or PROBE_SCALE_M
+            options.append((with_fringe_offsets(act, fringe),
+                            _specs(len(fringe.coefficients), scale, fringe.free)))
+        return options
+
     def refined_forms(self, act, hints):
         """One more harmonic (at 0: the fitted error itself), every coefficient
-        freed; none once :data:`MAX_HARMONICS` are fitted."""
+        freed, and the fringe offsets per recording where the model has them (all but
+        the reference's, :func:`fringe_reference`); none once :data:`MAX_HARMONICS`
+        are fitted."""
         have = len(getattr(act.output_map, "periodic", ())) // 2
         if not have or have >= MAX_HARMONICS:
             return []
         coef = np.abs(np.asarray(act.output_map.periodic, dtype=float))
         scale = float(coef.max()) if coef.max() > 0 else PROBE_SCALE_M
-        return [(with_periodic(act, have + 1), _specs(2 * (have + 1), scale))]
+        free = ()
+        if act.output_map.recordings():
+            reference = fringe_reference(hints)
+            free = tuple(r for r, q in enumerate(hints["outputs_m"])
+                         if _moves_a_fringe(q) and r != reference)
+        return [(with_periodic(act, have + 1), _specs(2 * (have + 1), scale, free))]
 
     def carry(self, init, fitted):
         return carry_output_map(init, fitted)
@@ -143,8 +334,11 @@ class SensorPeriodicEntry(CatalogueEntry):
         curve = _error(coef, p)
         parts = ", ".join(f"{a * 1e9:.3g} nm at {HENE_FRINGE_M / (k + 1) * 1e9:.4g} nm"
                           for k, a in enumerate(amps))
+        offsets = sum(1 for k in params if k.startswith("fringe_offset_"))
+        where = (f"; each recording's start along the fringe fitted ({offsets} offsets)"
+                 if offsets else "")
         return (f"interferometer periodic error: {parts}; "
-                f"{np.ptp(curve) * 1e9:.3g} nm peak to peak over a fringe")
+                f"{np.ptp(curve) * 1e9:.3g} nm peak to peak over a fringe{where}")
 
     def plot_form(self, ax, params, draws=None):
         coef = _coefficients(params)
@@ -189,5 +383,6 @@ def _max_slope(coef: np.ndarray) -> float:
                                                - coef[:, 0] * np.sin(phase)), axis=1))))
 
 
-__all__ = ["HARMONICS", "MAX_HARMONICS", "SensorPeriodicEntry", "coefficient_name",
-           "with_periodic"]
+__all__ = ["HARMONICS", "MAX_HARMONICS", "FringeStart", "SensorPeriodicEntry",
+           "coefficient_name", "fringe_reference", "fringe_start", "offset_name",
+           "with_fringe_offsets", "with_periodic"]
