@@ -54,7 +54,13 @@ from stickslip_jax.compilation_cache import (  # noqa: E402
 from stickslip_jax.diagnose import DiagnoseConfig, Policy, Verdict, diagnose  # noqa: E402
 from stickslip_jax.diagnose.report import diagnosis_dict, form_found  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
-from stickslip_jax.testing.concealed import VARIANTS, with_variant  # noqa: E402
+from stickslip_jax.testing.concealed import (  # noqa: E402
+    FRINGE_START_VARIANTS,
+    VARIANTS,
+    fringe_start_sensor,
+    read_from_fringe_starts,
+    with_variant,
+)
 
 ss.fast_cpu_loops()  # XLA: native small loops (before any JAX computation)
 # No persistent cache unless $STICKSLIP_CACHE_DIR names one (wall times are then those
@@ -83,8 +89,13 @@ def protocol(reduced: bool):
 
 
 def variant_recordings(variant: str, *, reduced: bool, seed: int):
-    """The protocol simulated from the truth with one variant effect, 1 nm noise."""
+    """The protocol simulated from the truth with one variant effect, 1 nm noise (the
+    variants read per recording: each from its own point of the fringe)."""
     specs = protocol(reduced)
+    if variant in FRINGE_START_VARIANTS:
+        clean = simulate_set(ss.load_params(TRUTH), specs, noise_m=0.0)
+        return read_from_fringe_starts(clean, lambda o: fringe_start_sensor(variant, o),
+                                       noise_m=1e-9, seed=seed)[0]
     act = with_variant(ss.load_params(TRUTH), variant)
     return simulate_set(act, specs, noise_m=1e-9, seed=seed)
 
@@ -205,22 +216,23 @@ def main() -> None:
     config = DiagnoseConfig().replace(**config_changes(args.config))
     answers = json.loads((CONCEALED / "answers.json").read_text())["sets"]
     chosen = [s for s in args.sets.split(",") if s] or sorted(answers)
+    variants = VARIANTS | FRINGE_START_VARIANTS
     if args.variants:
-        chosen = list(VARIANTS) if args.variants == "all" else args.variants.split(",")
-        unknown = [v for v in chosen if v not in VARIANTS]
+        chosen = list(variants) if args.variants == "all" else args.variants.split(",")
+        unknown = [v for v in chosen if v not in variants]
         if unknown:
-            sys.exit(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
+            sys.exit(f"unknown variant(s) {unknown}; choose from {', '.join(variants)}")
     kw = REDUCED_SETTINGS if args.reduced else {}
     rows = []
     for name in chosen:
         print(f"== {name}", flush=True)
         if args.variants:
             # The noise draw goes with the variant, whichever others run beside it.
-            seed = args.seed + 17 * list(VARIANTS).index(name)
+            seed = args.seed + 17 * list(variants).index(name)
             recs = variant_recordings(name, reduced=args.reduced, seed=seed)
             row = run_set(name, from_profile=args.from_profile, recs=recs, config=config,
                           **{"max_rounds": args.max_rounds, **kw})
-            row["hidden"] = f"{VARIANTS[name][0]} ({VARIANTS[name][1]})"
+            row["hidden"] = f"{variants[name][0]} ({variants[name][1]})"
         else:
             row = run_set(CONCEALED / name, from_profile=args.from_profile,
                           max_rounds=args.max_rounds, config=config)

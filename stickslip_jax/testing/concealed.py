@@ -162,6 +162,32 @@ def with_variant(act: Actuator, variant: str) -> Actuator:
     raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
 
 
+
+FRINGE_START_VARIANTS: dict[str, tuple[str, str]] = {
+    "interferometer_fringe_starts": ("sensor_periodic", "interferometer periodic error, "
+                                     "2.5 nm at 316.4 nm, one sine, each recording "
+                                     "starting at a random point of the fringe"),
+    "interferometer_skewed_fringe_starts": ("sensor_periodic", "3 nm at 316.4 nm, then "
+                                            "1.2 nm at a third of it on the reading, each "
+                                            "recording starting at a random point of the "
+                                            "fringe"),
+}
+"""Variants read recording by recording (:func:`read_from_fringe_starts`), as a real
+interferometer reads a set: ``name → (expected verdict name, form)``, like
+:data:`VARIANTS`; :func:`fringe_start_sensor` gives each one's sensor at an offset."""
+
+
+def fringe_start_sensor(variant: str, offset: float):
+    """The output map of ``variant`` (:data:`FRINGE_START_VARIANTS`) for a recording
+    starting ``offset`` [m] along the fringe."""
+    if variant == "interferometer_fringe_starts":
+        return PeriodicSensorError(2.5e-9, offset=offset)
+    if variant == "interferometer_skewed_fringe_starts":
+        return ChainedOutput((PeriodicSensorError(3e-9, offset=offset),
+                              PeriodicSensorError(1.2e-9, 316.4e-9 / 3, offset)))
+    raise ValueError(f"unknown variant {variant!r}; choose from "
+                     f"{', '.join(FRINGE_START_VARIANTS)}")
+
 def read_from_fringe_starts(recordings, sensor_at, *, noise_m: float, seed: int,
                             fringe_m: float = 316.4e-9):
     """``recordings`` (noise-free) as a real set's interferometer reads them, each
