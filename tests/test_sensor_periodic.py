@@ -282,6 +282,10 @@ def test_the_entry_offers_the_offsets_as_a_second_start_and_keeps_them_refined()
     act = ss.lu2015_slc1720()
     hints = _ramps(np.linspace(0.0, 250e-9, 4), [2e-9] * 4)
     probe = entry.probes(act, hints)[1]
+    # The probes read each recording at its offset (at zero strength: unchanged).
+    probe_act, _ = install_probes(act, [entry], hints)
+    assert probe_act.output_map.recordings() == 4
+    np.testing.assert_array_equal(probe_act.output_map.read(T, Q, 3), Q)
     [(shared, shared_specs), (each, specs)] = entry.attach_options(act, 1e-9, probe)
     assert shared.output_map.recordings() == 0 and len(shared_specs) == 2 * HARMONICS
     assert each.output_map.recordings() == 4

@@ -654,6 +654,10 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             refined_act, rss = refine_forms(problem, act, rss, accepted, hints_now,
                                             significance=significance, policy=policy,
                                             max_steps=max_steps, notes=notes)
+            # The next round's starts per recording from the residual where the model
+            # now stands (a periodic error's fringe phases show once another effect's
+            # misfit is gone); the shared peaks stay the baseline's.
+            hints = hints | {k: hints_now[k] for k in ("outputs_m", "residuals_m")}
             if refined_act is not act:
                 act = refined_act
                 nrmse = problem.evaluate(act)[1]

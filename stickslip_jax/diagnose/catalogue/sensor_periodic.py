@@ -22,8 +22,13 @@ constant and a cubic in time beside them), the recordings' coefficients rotated 
 one another, and the offsets offered where they lower the regression's BIC below that
 of one phase for all (ln N per offset; the misfits scaled by the rotated fit's
 overdispersion, so that another physics' misfit projected on the fringe is not taken
-for phases). The sizing then starts from whichever of the
-two costs least (:func:`~stickslip_jax.diagnose.sizing.first_order_start`).
+for phases). Then the score test's probes read each recording at its offset (with
+one phase for all, the recordings' errors would cancel in the probes' columns), and
+the sizing starts from whichever of the two starts costs least
+(:func:`~stickslip_jax.diagnose.sizing.first_order_start`). The offsets are the
+residual's where the model stands: after an accepted entry the next round's are the
+residual's then (a periodic error's phases show once another effect's misfit is
+gone).
 """
 
 from __future__ import annotations
@@ -243,12 +248,18 @@ def fringe_start(hints: dict, harmonics: int = HARMONICS) -> FringeStart | None:
                        tuple(r for r in used if r != reference), reference, float(gain))
 
 
+def _with_offsets(act: Actuator, offsets) -> Actuator:
+    """``act`` with a sensor reading the recordings at the fringe ``offsets`` [m], its
+    other quantities as they were (with no periodic error, the readings unchanged)."""
+    act = with_sensor(act)
+    return eqx.tree_at(lambda a: a.output_map, act, dataclasses.replace(
+        act.output_map, fringe_offsets=tuple(offsets)))
+
+
 def with_fringe_offsets(act: Actuator, start: FringeStart) -> Actuator:
     """``act`` (its sensor's other quantities kept) with ``start``'s coefficients and
     offsets."""
-    act = with_sensor(act)
-    return eqx.tree_at(lambda a: a.output_map, act, dataclasses.replace(
-        act.output_map, periodic=start.coefficients, fringe_offsets=start.offsets))
+    return _with_coefficients(_with_offsets(act, start.offsets), start.coefficients)
 
 
 @final
@@ -274,9 +285,14 @@ class SensorPeriodicEntry(CatalogueEntry):
     def probes(self, act, hints):
         # One spec for all: the coefficients are one vector quantity of the score test.
         spec = ParameterSpec(lambda a: a.output_map.periodic, "linear", PROBE_SCALE_M, "m")
-        fringe = fringe_start(hints)  # a start with an offset per recording, if asked
+        # Where the residual asks for an offset per recording, the probes read each
+        # recording at its own: one phase for all would see the recordings' errors
+        # cancel one another.
+        fringe = fringe_start(hints)
+        install = with_periodic if fringe is None else (
+            lambda a: with_periodic(_with_offsets(a, fringe.offsets)))
         return [Probe(f"periodic {coefficient_name(i).removeprefix('periodic_')}",
-                      with_periodic, spec, 0, {"index": i, "fringe": fringe})
+                      install, spec, 0, {"index": i, "fringe": fringe})
                 for i in range(2 * HARMONICS)]
 
     def attach(self, act, strength, probe):
