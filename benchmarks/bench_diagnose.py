@@ -19,8 +19,10 @@ the end-to-end timing of the issue (target: < 10 min per 17-recording set).
 magnitudes of the effects (a second-order amplifier, a two-mode creep, a 2.2 kHz mode,
 an 8 µs delay, a negative load, an interferometer periodic error of one sine, ...),
 simulated in memory on the same protocol (``--reduced``: the tests' 8-recording
-protocol), to check that the diagnosis is not tuned to the fixtures' generator.
-``--config FIELD=VALUE`` runs it with a :class:`DiagnoseConfig` change (recorded in the
+protocol), to check that the diagnosis is not tuned to the fixtures' generator, and
+those of :data:`~stickslip_jax.testing.concealed.FRINGE_START_VARIANTS`, read as a
+real interferometer reads a set: each recording from its own random point of the
+fringe. ``--config FIELD=VALUE`` runs it with a :class:`DiagnoseConfig` change (recorded in the
 JSON): an ablation of a switch beside a default run, in one checkout.
 
 Columns: hidden effect, named effect (first accepted; ``unexplained`` when the verdict
