@@ -223,7 +223,8 @@ def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
     the threshold moves rerun (:data:`MOVES`). Appended to
     ``out`` as each ends; runs already there are skipped (resume)."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from bench_diagnose_split import run_one  # noqa: PLC0415 (heavy; only here)
+    from bench_diagnose_split import run_one, work_spent  # noqa: PLC0415 (heavy)
+    from results_record import commit_of  # noqa: PLC0415
 
     from stickslip_jax.diagnose import DiagnoseConfig  # noqa: PLC0415
     from stickslip_jax.testing import random_sets as rs  # noqa: PLC0415
@@ -268,7 +269,9 @@ def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
         done.append({"change": change, "set": name, "hidden": row["hidden"],
                      "named_with": row["named"], "verdict_with": row["verdict"],
                      "named_changed": again["named"], "verdict_changed": again["verdict"],
-                     "wall_s_with": row["wall_s"], "wall_s_changed": again["wall_s"]})
+                     "wall_s_with": row["wall_s"], "wall_s_changed": again["wall_s"],
+                     # What the change costs or saves: the counted work, not the wall.
+                     "work_changed": work_spent(again), "commit": commit_of()})
         if out:
             out.write_text(json.dumps({"reruns": done}, indent=1, default=str))
     return done

@@ -186,8 +186,8 @@ def summary(rows: list[dict]) -> dict:
     named = [r for r in rows if r["named"]]
     walls = [r["wall_s"] for r in rows]
     compiles = [r["compile_s"] for r in rows if "compile_s" in r]  # rows since 36a7ecd
-    worked = [r for r in rows if _work_spent(r) is not None]
-    works = [_work_spent(r) for r in worked]
+    worked = [r for r in rows if work_spent(r) is not None]
+    works = [work_spent(r) for r in worked]
     m = confusion(rows)
     return {
         "sets": len(rows),
@@ -227,7 +227,7 @@ def summary(rows: list[dict]) -> dict:
         # Counted work (sample-evaluations): what bounds a diagnosis, the same on any
         # machine and under any load, unlike the wall time.
         "work": {"median": float(np.median(works)), "max": float(np.max(works)),
-                 "over_budget": sum(_work_spent(r) > _work_total(r) for r in worked)}
+                 "over_budget": sum(work_spent(r) > _work_total(r) for r in worked)}
         if works else None,
         "compile_share": (float(np.median(np.array(compiles) / np.array(walls)))
                           if compiles and len(compiles) == len(walls) else None),
@@ -236,7 +236,7 @@ def summary(rows: list[dict]) -> dict:
     }
 
 
-def _work_spent(row: dict) -> float | None:
+def work_spent(row: dict) -> float | None:
     """The sample-evaluations a set's diagnosis spent (rows since ec4632c), or None."""
     wb = row.get("work_budget")
     return float(wb["spent"]) if isinstance(wb, dict) and "spent" in wb else None
@@ -256,7 +256,7 @@ def print_summary(rows: list[dict], s: dict) -> None:
     print("|---" * 12 + "|")
     for r in sorted(rows, key=lambda r: r["index"]):
         ex = "" if r["excess_removed"] is None else f"{100 * r['excess_removed']:.0f} %"
-        spent = _work_spent(r)
+        spent = work_spent(r)
         work = "" if spent is None else f"{spent / 1e6:.1f}"
         print(f"| {r['set']} | {r['hidden']} | {r['form']} | {'yes' if r['catalogue_form'] else ''}"
               f" | {r['effect_to_noise']:.2g} ({r['beyond_to_noise']:.2g}) | "
