@@ -323,8 +323,8 @@ class SensorPeriodicEntry(CatalogueEntry):
             return []
         coef = np.abs(np.asarray(act.output_map.periodic, dtype=float))
         scale = float(coef.max()) if coef.max() > 0 else PROBE_SCALE_M
-        free = ()
-        if act.output_map.recordings():
+        free = ()  # without the hints, the offsets held where the fit left them
+        if act.output_map.recordings() and hints.get("outputs_m"):
             reference = fringe_reference(hints)
             free = tuple(r for r, q in enumerate(hints["outputs_m"])
                          if _moves_a_fringe(q) and r != reference)
