@@ -76,7 +76,8 @@ class Policy:
     """``S`` (χ²(1) when the entry is absent) an entry needs to be sized, and so
     refitted. ``P(χ²(1) ≥ 30) ≈ 4e-8``: with about 20 probes tested at once the chance
     that any pure-noise probe passes stays below 1e-6 (Bonferroni), so an entry sized
-    is one the data point to, not a multiple-testing accident."""
+    is one the data point to, not a multiple-testing accident. Switched off (0: every
+    entry sized), the sizing flips on one dev2 null set; rerun, still adequate."""
 
     bic_min: float = -10.0
     """ΔBIC an entry's refit must fall below to be accepted (and to count as a rival in
@@ -98,7 +99,9 @@ class Policy:
     flip on 3 sets at half, 4 at twice; rerun on all 7. At twice none named another
     entry or gave another verdict (three end within the tolerance, which accepts an
     entry whatever this share); at half one named a wrong second entry beside the right
-    one (a friction law after an exponential drift), which this share keeps out."""
+    one (a friction law after an exponential drift), which this share keeps out.
+    Switched off (0), rerun on the 5 sets whose gates flip: that set again named the
+    wrong second entry, the other four gave the default's answers."""
 
     partial_min: float = 0.5
     """When no refit explains the residual (:attr:`explained_min`), the best refit that
@@ -112,7 +115,9 @@ class Policy:
     derivation. Ablation (dev2): gates flip on no set at half, on 3 at twice; rerun at
     twice (no partial answers) on all 3, two ended with nothing named ("unexplained")
     where the default names the hidden entry: a rate lag (named alone) and a mode
-    (named second, after creep's partial answer, a wrong first name)."""
+    (named second, after creep's partial answer, a wrong first name). Switched off
+    (the same as twice: no partial answers), rerun on the 3: the same two lost their
+    names, the third kept its answer."""
 
     significance_z: float = SIGNIFICANCE_Z
     """One-sided normal quantile of the practical-significance tests
@@ -146,7 +151,8 @@ class Policy:
     on the concealed sets; no statistical derivation yet. Ablation (dev2): which entries
     are sized flips on 4 sets at half, 3 at twice; rerun on all 7, none named another
     entry or gave another verdict. Switched off, it flips the sizing on 4 dev2 sets and
-    3 concealed ones (not rerun)."""
+    3 concealed ones; rerun on the 4 dev2 sets, no answer changed: what it decides
+    there is work (sizings not run), not yet counted."""
 
     competitive_share: float = 0.25
     """Below the leader, an entry gets a first refit (every baseline parameter freed:
@@ -159,7 +165,8 @@ class Policy:
     after its refit); no statistical derivation yet. Ablation (dev2): the first refits
     flip on 4 sets at half, 6 at twice; rerun on all 10, none named another entry or
     gave another verdict. Switched off (every promising entry of the top refitted
-    first), they flip on 7 dev2 sets and 7 concealed ones (not rerun)."""
+    first), they flip on 7 dev2 sets and 7 concealed ones; rerun on the 7 dev2 sets, no
+    answer changed: what it buys there is work (refits not run), not yet counted."""
 
     leader_alone_share: float = 0.90
     """When the leader's sizing alone (its own parameters, the baseline held) removes
@@ -191,7 +198,9 @@ class Policy:
     scores like a first one. Tuned on the concealed sets (5 % at most after an
     acceptance against 27-99 % for a real second effect); no statistical derivation
     yet. Ablation: which entries a later round sizes flips on 1 set at half and at
-    twice; rerun at both, the same entries and verdict."""
+    twice; rerun at both, the same entries and verdict. Switched off (0: every entry
+    sized in a later round), it flips on 7 dev2 sets; rerun on all 7, no answer
+    changed: what it buys there is work, not yet counted."""
 
     second_look_chi2: float = 2.0
     """When every refit that would be accepted leaves a mean ``(e/σ)²`` above this, the
