@@ -126,6 +126,19 @@ def test_an_error_whose_slope_reaches_the_positions_is_implausible():
     assert "5 nm at 316.4 nm" in said and "1 nm at 158.2 nm" in said
     fig, ax = plt.subplots()
     assert entry.plot_form(ax, {"periodic_cos_1": 3e-9, "periodic_sin_1": 4e-9})
+    assert len(ax.lines) == 2  # the error and its first harmonic: no offsets fitted
+    plt.close(fig)
+    # The fitted offsets drawn where each recording starts on the fringe (mod P).
+    fig, ax = plt.subplots()
+    assert entry.plot_form(ax, {"periodic_cos_1": 3e-9, "periodic_sin_1": 4e-9,
+                                "fringe_offset_1": 100e-9, "fringe_offset_2": 400e-9})
+    starts = ax.lines[-1]
+    np.testing.assert_allclose(starts.get_xdata(), [100.0, 400.0 - 316.4],
+                               atol=1e-2)  # nm
+    # e(p) = 3 cos(2πp/P) + 4 sin(2πp/P) nm at the starts.
+    phase = 2 * np.pi * np.array([100.0, 400.0 - 316.4]) / 316.4
+    np.testing.assert_allclose(starts.get_ydata(), 3 * np.cos(phase) + 4 * np.sin(phase),
+                               atol=1e-3)
     plt.close(fig)
 
 

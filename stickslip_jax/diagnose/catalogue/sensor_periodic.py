@@ -274,9 +274,8 @@ class SensorPeriodicEntry(CatalogueEntry):
                  f"({HENE_FRINGE_M * 1e9:.4g} nm) or its harmonics, in every regime alike")
 
     def needs(self, recordings):
-        spans = [float(np.ptp(r.position_m)) for r in recordings
-                 if r.position_m is not None and r.position_m.size]
-        if not spans or max(spans) < HENE_FRINGE_M:
+        if not any(_moves_a_fringe(r.position_m) for r in recordings
+                   if r.position_m is not None):
             return (f"indistinguishable: no recording moves one fringe "
                     f"({HENE_FRINGE_M * 1e9:.4g} nm); within a fringe a periodic error of "
                     f"the reading is a smooth bend of the stroke")
@@ -350,7 +349,7 @@ class SensorPeriodicEntry(CatalogueEntry):
         curve = _error(coef, p)
         parts = ", ".join(f"{a * 1e9:.3g} nm at {HENE_FRINGE_M / (k + 1) * 1e9:.4g} nm"
                           for k, a in enumerate(amps))
-        offsets = sum(1 for k in params if k.startswith("fringe_offset_"))
+        offsets = _fitted_starts(params).size
         where = (f"; each recording's start along the fringe fitted ({offsets} offsets)"
                  if offsets else "")
         return (f"interferometer periodic error: {parts}; "
@@ -366,6 +365,11 @@ class SensorPeriodicEntry(CatalogueEntry):
         ax.plot(p * 1e9, _error(coef, p) * 1e9, color="tab:blue", label="error found")
         ax.plot(p * 1e9, _error(coef[:1], p) * 1e9, color="0.5", ls="--", lw=0.8,
                 label="first harmonic")
+        starts = _fitted_starts(params)
+        if starts.size:
+            # Where each recording's first sample meets the fringe: the error read there.
+            ax.plot(starts * 1e9, _error(coef, starts) * 1e9, "o", ms=3, color="tab:orange",
+                    label=f"recordings' starts ({starts.size} fitted; the reference's held)")
         ax.set_xlabel("position read [nm]")
         ax.set_ylabel("reading error [nm]")
         ax.set_title(f"interferometer periodic error ({len(coef)} harmonics)", fontsize=9)
@@ -378,6 +382,12 @@ def _coefficients(params: dict[str, float]) -> np.ndarray:
     count = sum(1 for k in params if k.startswith("periodic_"))
     return np.array([params.get(coefficient_name(i), 0.0)
                      for i in range(count - count % 2)]).reshape(-1, 2)
+
+
+def _fitted_starts(params: dict[str, float]) -> np.ndarray:
+    """The fitted fringe offsets in ``params``, each within one fringe [m]."""
+    offsets = [v for k, v in params.items() if k.startswith("fringe_offset_")]
+    return np.mod(np.asarray(offsets, dtype=float), HENE_FRINGE_M)
 
 
 def _error(coef: np.ndarray, p: np.ndarray) -> np.ndarray:
