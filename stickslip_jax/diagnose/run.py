@@ -607,6 +607,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         # 4. Size (either sign: a large effect can turn the first-order sign around),
         # with the baseline held, then free to first order; rank by the largest of the
         # score and the sizing's drops.
+        t0 = time.perf_counter()
         seeded = {c.name for c in pool if c.seeds(init)}
         chosen = chosen_for_sizing(results, seeded, size_at_most,
                                    rss - n_obs if accepted else None, say, policy)
@@ -619,8 +620,10 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
                         key=lambda r: -rank_value(r))
         if rnd == 0:
             round_one_work = budget.spent - spent_before_round
+        timings[f"size_round{rnd + 1}_s"] = time.perf_counter() - t0
 
         # 5. Refit, from the round's optimum.
+        t0 = time.perf_counter()
         reserve = setup.learned_reserve(act) if fallback and not accepted else 0.0
         at = RoundStart(act, rss, nrmse_now, max(rss - n_obs, 1e-9), reserve, held_out)
         again = (Reidentification(base.rss_identified, init, fix, tuple(staged))
@@ -628,6 +631,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         _refit_round(RefitRound(setup, at, ranked, pool, sized, free_sizings, seeded,
                                 top, first_budgeted=rnd > 0, reidentification=again,
                                 timings=timings), config.refit_passes)
+        timings[f"refit_round{rnd + 1}_s"] = time.perf_counter() - t0
         refitted = sorted([r for r in results if r.refitted],
                           key=lambda r: r.criterion_delta)
         rounds.append(results)
@@ -648,6 +652,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         # The accepted entries' forms within their classes (a tanh slew limit's corner
         # freed, ...): a residue of the fitted form is not another effect's.
         if config.refine_forms:
+            t0 = time.perf_counter()
             # The hints where the model now stands (a second mode's residual peak shows
             # once the first is fitted).
             hints_now = _locate(problem, problem.evaluate(act)[2], config)[2]
@@ -658,6 +663,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             # now stands (a periodic error's fringe phases show once another effect's
             # misfit is gone); the shared peaks stay the baseline's.
             hints = hints | {k: hints_now[k] for k in ("outputs_m", "residuals_m")}
+            timings[f"refine_round{rnd + 1}_s"] = time.perf_counter() - t0
             if refined_act is not act:
                 act = refined_act
                 nrmse = problem.evaluate(act)[1]
