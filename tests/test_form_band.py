@@ -110,6 +110,8 @@ def _example_forms():
         ("sensor_drift", {"sensor_drift": 1e-7, amplitude_name(0.01): 2e-8}),
         ("rate_dependent_hysteresis", rate),
         ("sensor_periodic", {"periodic_cos_1": 3e-9, "periodic_sin_1": 4e-9}),
+        ("stribeck", {"stribeck_excess": 1.4, "v_s": 2e-3}),
+        ("external_load", {"F_ext": 2e-3, "k_load": 30.0}),
     ]
 
 
@@ -123,3 +125,20 @@ def test_each_banded_form_draws_the_band_of_its_draws(name, params):
     assert candidate(name).plot_form(ax, params, draws=draws)
     assert len(ax.collections) == without + 1
     assert any("95 %" in t.get_text() for t in ax.get_legend().get_texts())
+
+
+def test_stribeck_and_the_load_draw_their_laws():
+    """The curves drawn are the laws': the Stribeck ratio 1 + (r − 1)/(1 + (v/v_s)²)
+    (1.2 at v_s for r = 1.4, 1 far above), and the load F_ext − k_load·x (mN, µm)."""
+    fig, ax = subplots()
+    assert candidate("stribeck").plot_form(ax, {"stribeck_excess": 1.4, "v_s": 2e-3})
+    v, f = ax.lines[0].get_xdata(), ax.lines[0].get_ydata()
+    assert f[0] == pytest.approx(1.4) and np.interp(2.0, v, f) == pytest.approx(1.2, rel=1e-3)
+    assert f[-1] == pytest.approx(1.0 + 0.4 / 37.0)  # at 6 v_s
+    said = candidate("stribeck").describe({"stribeck_excess": 1.4, "v_s": 2e-3})
+    assert "1.4x" in said and "2 mm/s" in said
+    fig, ax = subplots()
+    assert candidate("external_load").plot_form(ax, {"F_ext": 2e-3, "k_load": 30.0})
+    x, f = ax.lines[0].get_xdata(), ax.lines[0].get_ydata()
+    assert np.interp(50.0, x, f) == pytest.approx(2.0 - 30.0 * 50e-6 * 1e3)  # 0.5 mN
+    assert not candidate("stribeck").plot_form(ax, {})

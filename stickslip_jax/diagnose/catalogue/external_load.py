@@ -13,13 +13,27 @@ from typing import final
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from ...identify.parameters import ParameterSpec
+from ..form_band import draw_band
 from .base import CatalogueEntry, Probe
 
 PROBE_STIFFNESS_SCALE = 100.0
 """θ unit of the spring probe [N/m]: a stiffness that, over the 10-100 µm a
 recording travels, pulls by 1-10 mN, the order of the contact's friction."""
+
+
+FIGURE_TRAVEL_M = 100e-6
+"""The form's figure shows the load over ±this travel from a recording's start [m]
+(the paper protocol's recordings travel 10-100 µm)."""
+
+
+def load_force(params: dict[str, float], travel) -> np.ndarray:
+    """The load on the slider [N] at ``travel`` [m] from a recording's start, from
+    refitted ``params``: ``F_ext − k_load·x2``."""
+    return params.get("F_ext", 0.0) - params.get("k_load", 0.0) * np.asarray(travel,
+                                                                              dtype=float)
 
 
 def _slider_f_ext(a):
@@ -69,3 +83,17 @@ class ExternalLoadEntry(CatalogueEntry):
     def describe(self, params: dict[str, float]) -> str:
         return (f"external load: {params.get('F_ext', 0.0) * 1e3:.3g} mN constant and "
                 f"{params.get('k_load', 0.0):.3g} N/m against the slider's travel")
+
+    def plot_form(self, ax, params, draws=None):
+        if "F_ext" not in params and "k_load" not in params:
+            return False
+        x = np.linspace(-FIGURE_TRAVEL_M, FIGURE_TRAVEL_M, 200)
+        draw_band(ax, x * 1e6, lambda p: load_force(p, x), params, draws, scale=1e3)
+        ax.plot(x * 1e6, load_force(params, x) * 1e3, color="tab:blue", label="load found")
+        ax.plot(x * 1e6, np.full_like(x, params.get("F_ext", 0.0) * 1e3), color="0.5",
+                ls="--", lw=0.8, label="its constant part")
+        ax.set_xlabel("slider travel from the recording's start [µm]")
+        ax.set_ylabel("load on the slider [mN]")
+        ax.set_title("external load against the travel", fontsize=9)
+        ax.legend(fontsize=7)
+        return True
