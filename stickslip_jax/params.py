@@ -33,6 +33,7 @@ from .model.registry import (
     missing_law_parameters,
 )
 from .model.slider import Slider
+from .model.slot_files import SLOT_KEYS, slots_from_json, slots_to_json
 
 __all__ = ["COMMON_REQUIRED", "COMMON_OPTIONAL", "DEFAULT_FRICTION", "FRICTION_LAWS",
            "ParameterError", "actuator_from_params", "allowed_names", "describe_parameters",
@@ -64,6 +65,18 @@ COMMON_OPTIONAL = {"Kact2": 0.0, "N": 0.0, "F_ext": 0.0, "k_load": 0.0, "frictio
 FIT_STATUS_DOC = ("how the identification that wrote the file judged its fit (only "
                   "written when it is not a plain result, e.g. 'misspecified: ...'); "
                   "metadata: no physics reads it")
+SLOT_DOCS = {
+    "drive_stage": "the drive amplifier between the command and the piezo: one "
+                   "{\"type\": ..., arguments} object (LowPassInput, SecondOrderInput, "
+                   "SlewLimitedInput, ParallelInputs, ...; default: none)",
+    "extensions": "extra physics, a list of {\"type\": ..., arguments} objects "
+                  "(StructuralMode, Creep, CreepSpectrum, RateLagForm, "
+                  "SaturatingViscosity, ...; default: none)",
+    "sensor": "what the sensor reads: one {\"type\": ..., arguments} object "
+              "(SensorOutput: delay, drift, periodic error; default: the position)",
+}
+"""The slots' entries (:mod:`~stickslip_jax.model.slot_files`): what `stickslip
+diagnose` adds is written in them."""
 _VECTOR_DOCS = {
     "pi_thresholds": "Prandtl-Ishlinskii play thresholds, ascending [V]",
     "pi_weights": "Prandtl-Ishlinskii weights [m/V]",
@@ -83,6 +96,7 @@ def parameter_docs() -> dict[str, dict[str, str]]:
     common.update({p.name: p.described for p in ACTUATOR_SCALARS[5:]})
     common["friction"] = _friction_doc()
     common["fit_status"] = FIT_STATUS_DOC
+    common.update(SLOT_DOCS)
     out = {"": common}
     for name, law in FRICTION_LAWS.items():
         out[name] = {p.name: p.described for p in law.parameters}
@@ -126,7 +140,7 @@ def allowed_names(friction: str = DEFAULT_FRICTION) -> tuple[str, ...]:
     """Every parameter name a file with this friction law may hold."""
     common = COMMON_REQUIRED + tuple(COMMON_OPTIONAL)
     return common + tuple(p.name for p in friction_law(friction).parameters
-                          if p.name not in common)
+                          if p.name not in common) + SLOT_KEYS
 
 
 def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None) -> Actuator:
@@ -172,7 +186,7 @@ def actuator_from_params(params: Mapping[str, Any], *, source: str | None = None
         if err.source is not None or source is None:
             raise
         raise ParameterError(err.message, source=source, fix=err.fix) from None
-    return Actuator(piezo, hysteresis, slider, contact)
+    return Actuator(piezo, hysteresis, slider, contact, **slots_from_json(params, source))
 
 
 def params_from_actuator(actuator: Actuator) -> dict[str, Any]:
@@ -188,6 +202,7 @@ def params_from_actuator(actuator: Actuator) -> dict[str, Any]:
         "friction": friction_law_name(f),
     }
     out.update(f.to_params())  # a law's own preload (CEIM's N) replaces the piezo's
+    out.update(slots_to_json(actuator))  # drive stage, extensions, sensor (if any)
     return out
 
 

@@ -22,6 +22,7 @@ import pytest
 import stickslip_jax as ss
 from stickslip_jax.diagnose import Verdict, diagnose
 from stickslip_jax.diagnose.budget import DEFAULT_WORK_BUDGET
+from stickslip_jax.params import fit_status_of
 from stickslip_jax.synthetic import paper_protocol, simulate_set
 from stickslip_jax.testing.concealed import with_effect
 
@@ -143,6 +144,14 @@ def test_cli_writes_the_diagnosis(base, tmp_path):
         assert first["refit_start_cost"] < held_cost and held_cost > first["rss_before"]
     report = (out / "report.md").read_text()
     assert "sensor_delay" in report and (out / "figures" / "residual_map.png").exists()
+    # The final model is a parameter file holding what was named, as refitted; the
+    # baseline's beside it.
+    final = ss.load_params(out / "params.json")
+    assert float(final.output_map.delay) == pytest.approx(m["params"]["sensor_delay"],
+                                                          rel=1e-12)
+    assert fit_status_of(out / "params.json") is None  # augmented: a result
+    assert "sensor" not in json.loads((out / "baseline_params.json").read_text())
+    assert "`params.json`" in report
     # Nothing is replaced without --force; unknown entries are refused.
     again = runner.invoke(app, args)
     assert again.exit_code == 2 and "--force" in again.output

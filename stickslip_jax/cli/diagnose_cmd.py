@@ -123,7 +123,8 @@ def diagnose_command(
         fixed = parse_fix(fix)
         recordings = load_recordings_reporting_all(data)
         inputs = [r.source for r in recordings if r.source]
-        names = ["diagnosis.json", "report.md"] + ([] if no_figures else [
+        names = ["diagnosis.json", "report.md", "params.json",
+                 "baseline_params.json"] + ([] if no_figures else [
             f"figures/{n}.png" for n in ("residual_map", "overlays", "residual_psd")])
         check_outputs(dict.fromkeys(out / n for n in names), force=force,
                       inputs=[params, *inputs])
@@ -156,4 +157,5 @@ def diagnose_command(
         typer.echo(f"  left: {left_line(result.left)}")
     if result.unexplained is not None:
         typer.echo(f"  {unexplained_line(result)}")
-    typer.echo(f"wrote {written['diagnosis']} and {written['report']}")
+    typer.echo(f"wrote {written['diagnosis']} and {written['report']}; the final model "
+               f"{written['params']}")

@@ -10,13 +10,15 @@ import numpy as np
 
 from ..files import atomic_write_text, check_output_path
 from ..identify.residuals import periodogram_psd
+from ..model.extensions import LearnedForce
+from ..params import save_params
 from ..plots import save_figure, subplots
 from .catalogue import NAMES, candidate
 from .form_band import intervals
 from .locate import residual_of
 from .policy import DEFAULT_POLICY, Policy
 from .records import RefitOutcome, SizingOutcome
-from .results import CandidateResult, CandidateStatus, Diagnosis
+from .results import CandidateResult, CandidateStatus, Diagnosis, Verdict
 
 
 def criterion_text(policy: Policy = DEFAULT_POLICY) -> str:
@@ -257,6 +259,10 @@ def write_diagnosis(d: Diagnosis, out_dir: str | Path, *, force: bool = False,
     check_output_path(path, force=force, inputs=inputs)
     atomic_write_text(path, json.dumps(content, indent=1, default=float) + "\n")
     written["diagnosis"] = path
+    written["params"] = save_params(d.final, out_dir / "params.json", force=force,
+                                    inputs=inputs, fit_status=final_fit_status(d))
+    written["baseline_params"] = save_params(d.baseline, out_dir / "baseline_params.json",
+                                             force=force, inputs=inputs)
     figs = {}
     if figures:
         fig_dir = out_dir / "figures"
@@ -281,13 +287,33 @@ def write_diagnosis(d: Diagnosis, out_dir: str | Path, *, force: bool = False,
     return written
 
 
+def final_fit_status(d: Diagnosis) -> str | None:
+    """The ``fit_status`` mark of the final model's parameter file: None where it
+    describes the recordings to the noise (augmented, or a baseline adequate), else
+    why not (what the named physics left, or a residual no entry explains)."""
+    if d.verdict is Verdict.PARTLY_EXPLAINED and d.left is not None:
+        return f"misspecified: partly explained: {left_line(d.left)} (diagnosis.json)"
+    if d.verdict is Verdict.UNEXPLAINED:
+        learned = any(isinstance(e, LearnedForce) for e in d.final.extensions)
+        return ("misspecified: unexplained residual: no catalogue entry explains what the "
+                "baseline leaves" + (" (a learned force correction stands in for it)"
+                                     if learned else "") + " (diagnosis.json)")
+    return None
+
+
 def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
     """``report.md``: verdict, what was named, tables, figures."""
     lines = ["# Diagnosis", "", f"**Verdict: {content['verdict']}**", ""]
     b, f = content["baseline"], content["final"]
     lines += [f"Baseline NRMSE {b['nrmse_percent']:.4f} % (mean (e/σ)² "
               f"{b['chi2_per_sample']:.3f}); final {f['nrmse_percent']:.4f} % "
-              f"({f['chi2_per_sample']:.3f}). Model terms: {', '.join(f['terms'])}.", ""]
+              f"({f['chi2_per_sample']:.3f}). Model terms: {', '.join(f['terms'])}.", "",
+              "The final model (the baseline and what was named, refitted) is "
+              "`params.json`, the baseline `baseline_params.json`: `stickslip simulate "
+              "--params params.json` runs it"
+              + ("" if content["verdict"] in (Verdict.AUGMENTED, Verdict.BASELINE_ADEQUATE)
+                 else " (marked misspecified: it does not describe these recordings to "
+                      "the noise)") + ".", ""]
     sig = content.get("significance") or {}
     if sig:
         lines += [f"Tolerance of the noise: mean (e/σ)² within 1 + "
