@@ -97,6 +97,8 @@ def identify_command(
                  if not (no_figures and p.parent == out / "figures")]
         check_outputs(dict.fromkeys(paths), force=force,
                       inputs=[init, *(r.source for r in recordings)])
+        from ..model.slot_files import slots_to_json
+
         start = load_params_noting(init) if init is not None else lu2015_slc1720()
         check_actuator_plausible(start, init)
         if init is not None and not keep_thresholds and (
@@ -105,6 +107,11 @@ def identify_command(
             typer.echo(f"note: the PI weights are fitted on {n_pi} thresholds over the "
                        f"recorded voltages (--n-pi), not on the {n_start} of {init}; "
                        f"--keep-thresholds keeps those", err=True)
+        held = list(slots_to_json(start))
+        if held:
+            typer.echo(f"note: {init}'s {', '.join(held)} (what `stickslip diagnose` adds) "
+                       f"are held at their values: identify fits the baseline's "
+                       f"quantities", err=True)
         # Locked before the fit, written whole or not at all (stickslip_jax.staging);
         # the figures' helper process starts now, so that its start-up overlaps the fit,
         # and stops before the staged outputs are moved or removed.
