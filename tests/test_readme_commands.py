@@ -100,7 +100,8 @@ OUTPUTS = {
     "sweep": ("velocity_map.csv", "velocity_map.png"),
     "zba-surface": ("zba_surface.json",),
     "contacts": ("contacts.json",),
-    "diagnose": ("diagnosis.json", "report.md", "figures"),
+    "diagnose": ("diagnosis.json", "report.md", "params.json", "baseline_params.json",
+                 "figures"),
 }
 
 PATH_OPTIONS = ("--out", "--plot")
