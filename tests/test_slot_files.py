@@ -146,3 +146,24 @@ def test_the_final_model_of_a_partial_or_unexplained_diagnosis_is_marked():
     assert "1.400" in status(Verdict.PARTLY_EXPLAINED)
     assert "learned force" not in status(Verdict.UNEXPLAINED)
     assert "learned force" in status(Verdict.UNEXPLAINED, learned)
+
+
+def test_a_rival_the_data_cannot_tell_apart_is_written_as_refitted():
+    from types import SimpleNamespace
+
+    from stickslip_jax.diagnose.report import rival_models
+
+    plain = ss.lu2015_slc1720()
+    mode = plain.with_extension(StructuralMode(3300.0, 0.03, 1.2e-7))
+    creep = plain.with_extension(Creep(0.01, 5e-3))
+
+    def result(name, act, accepted=False, rivals=()):
+        return SimpleNamespace(name=name, accepted=accepted, refit=SimpleNamespace(actuator=act),
+                               indistinguishable_from=list(rivals))
+
+    rounds = [[result("structural_mode", mode, True, ["creep"]), result("creep", creep),
+               result("sensor_delay", plain)]]
+    rivals = rival_models(SimpleNamespace(rounds=rounds))
+    assert list(rivals) == ["creep"] and rivals["creep"][0] is creep
+    assert rivals["creep"][1].startswith("rival: indistinguishable from structural_mode")
+    assert rival_models(SimpleNamespace(rounds=[[result("creep", creep, True)]])) == {}

@@ -263,6 +263,12 @@ def write_diagnosis(d: Diagnosis, out_dir: str | Path, *, force: bool = False,
                                     inputs=inputs, fit_status=final_fit_status(d))
     written["baseline_params"] = save_params(d.baseline, out_dir / "baseline_params.json",
                                              force=force, inputs=inputs)
+    rivals = rival_models(d)
+    if rivals:
+        (out_dir / "rivals").mkdir(exist_ok=True)
+    for name, (act, status) in rivals.items():
+        written[f"rival_{name}"] = save_params(act, out_dir / "rivals" / f"{name}.json",
+                                               force=force, inputs=inputs, fit_status=status)
     figs = {}
     if figures:
         fig_dir = out_dir / "figures"
@@ -285,6 +291,24 @@ def write_diagnosis(d: Diagnosis, out_dir: str | Path, *, force: bool = False,
     atomic_write_text(report, report_markdown(content, figs, out_dir))
     written["report"] = report
     return written
+
+
+def rival_models(d: Diagnosis) -> dict[str, tuple]:
+    """``name → (actuator, fit_status)``: the refitted model of each entry the data
+    could not tell from an accepted one (:attr:`~.results.CandidateResult.
+    indistinguishable_from`), as refitted in the round the accepted one was named;
+    the other explanation of these recordings, to simulate beside the final model."""
+    out = {}
+    for rnd in d.rounds:
+        named = [c for c in rnd if c.accepted]
+        for c in named:
+            for r in rnd:
+                if (r.name in c.indistinguishable_from and r.refit is not None
+                        and r.refit.actuator is not None and r.name not in out):
+                    out[r.name] = (r.refit.actuator,
+                                   f"rival: indistinguishable from {c.name} on these "
+                                   f"recordings, not named (diagnosis.json)")
+    return out
 
 
 def final_fit_status(d: Diagnosis) -> str | None:
@@ -341,7 +365,8 @@ def report_markdown(content: dict, figs: dict, out_dir: Path) -> str:
                 lines.append(f"|  | {m['form']} | | | | |")
             ind = m["evidence"]["indistinguishable_from"]
             if ind:
-                lines.append(f"|  | indistinguishable from: {', '.join(ind)} | | | | |")
+                lines.append(f"|  | indistinguishable from: {', '.join(ind)} (refitted: "
+                             f"{', '.join(f'`rivals/{n}.json`' for n in ind)}) | | | | |")
     else:
         lines.append("None accepted.")
     lines += ["", f"Criterion: {content['criterion']}.", ""]
