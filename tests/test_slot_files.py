@@ -167,3 +167,33 @@ def test_a_rival_the_data_cannot_tell_apart_is_written_as_refitted():
     assert list(rivals) == ["creep"] and rivals["creep"][0] is creep
     assert rivals["creep"][1].startswith("rival: indistinguishable from structural_mode")
     assert rival_models(SimpleNamespace(rounds=[[result("creep", creep, True)]])) == {}
+
+
+def test_every_model_the_diagnosis_can_name_is_written_and_read_back():
+    """Each catalogue entry attached (each probe), seeded and refined within its class:
+    the models a diagnosis may end with, every one a parameter file."""
+    from stickslip_jax.diagnose.catalogue import CATALOGUE, candidate
+
+    base = ss.lu2015_slc1720()
+    hints = {"peaks_Hz": [3300.0], "sample_interval_s": 4e-5}
+    models = []
+    for cand in CATALOGUE:
+        attached = [cand.attach(base, 1e-3 * p.strength_scale(1.0), p)[0]
+                    for p in cand.probes(base, hints)]
+        attached += [act for act, _ in cand.seeds(base)]
+        models += attached + [act for a in attached
+                              for act, _ in cand.refined_forms(a, hints)]
+    # A fitted slew limit (the drive probes' slew at mix 1) refines to a shaped one.
+    slew = ss.Actuator(base.piezo, base.hysteresis, base.slider, base.friction,
+                       input_stage=SlewLimitedInput(1.5e6, 1e-6))
+    models += [act for act, _ in candidate("drive_bandwidth").refined_forms(slew, hints)]
+    kinds = {type(m.input_stage).__name__ for m in models} | {
+        type(e).__name__ for m in models for e in m.extensions} | {
+        type(m.output_map).__name__ for m in models}
+    assert {"ParallelInputs", "SecondOrderInput", "ShapedSlewInput", "StructuralMode",
+            "CreepSpectrum", "RateLagForm", "SaturatingViscosity", "SensorOutput"} <= kinds
+    for act in models:
+        back = actuator_from_params(json.loads(json.dumps(params_from_actuator(act))))
+        assert jax.tree.structure(back) == jax.tree.structure(act)
+        for a, b in zip(jax.tree.leaves(act), jax.tree.leaves(back), strict=True):
+            np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
