@@ -88,7 +88,13 @@ def diagnose_command(
     with reported_errors():
         setup_jax()
         from ..diagnose import NAMES, DiagnoseConfig, diagnose
-        from ..diagnose.report import left_line, named_line, unexplained_line, write_diagnosis
+        from ..diagnose.report import (
+            final_fit_status,
+            left_line,
+            named_line,
+            unexplained_line,
+            write_diagnosis,
+        )
         from ..model.profiles import lu2015_slc1720
         from ..plausibility import check_actuator_plausible
         from ..staging import staged_folder
@@ -157,5 +163,7 @@ def diagnose_command(
         typer.echo(f"  left: {left_line(result.left)}")
     if result.unexplained is not None:
         typer.echo(f"  {unexplained_line(result)}")
+    marked = ("" if final_fit_status(result) is None else
+              " (marked misspecified: it does not describe these recordings to the noise)")
     typer.echo(f"wrote {written['diagnosis']} and {written['report']}; the final model "
-               f"{written['params']}")
+               f"{written['params']}{marked}")
