@@ -5,6 +5,8 @@
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.7
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -40,6 +42,7 @@
 # %%
 import json
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -165,3 +168,23 @@ plt.show()
 answer = json.loads((FIXTURES / "concealed" / "answers.json").read_text())["sets"]["set_05"]
 print(f"the concealed effect was: {answer}; named: "
       f"{[c.name for c in d.accepted] or 'nothing'}")
+
+# %% [markdown]
+# ## The model found, as a parameter file
+#
+# `d.final` is the baseline with what was named, refitted. `ss.save_params` writes it
+# whole (the named physics in the file's `drive_stage`, `extensions` and `sensor`
+# entries; `stickslip diagnose --out` writes the same `params.json`), and what is read
+# back simulates the same trace to the last bit.
+
+# %%
+with tempfile.TemporaryDirectory() as tmp:
+    path = ss.save_params(d.final, Path(tmp) / "params.json")
+    written = json.loads(path.read_text())
+    print({k: written[k] for k in ("drive_stage", "extensions", "sensor") if k in written})
+    again = ss.load_params(path)
+rec = d.data.recordings[0]
+same = np.array_equal(np.asarray(ss.simulate(again, rec.voltage_V, dt=rec.dt)),
+                      np.asarray(ss.simulate(d.final, rec.voltage_V, dt=rec.dt)))
+print(f"{rec.name}: the model read back simulates the same trace: {same}")
+assert same
