@@ -154,8 +154,8 @@ class Policy:
     are sized flips on 4 sets at half, 3 at twice; rerun on all 7, none named another
     entry or gave another verdict. Switched off, it flips the sizing on 4 dev2 sets and
     3 concealed ones; rerun on the 4 dev2 sets, no answer changed. Its work, counted
-    (5be3c2b, each beside a default run): switched off, the same answer for 3 %, 2 %
-    and 23 % less work (sets 24, 28, 05), the same work on 08. On dev2 it decides
+    (5be3c2b, each beside a default run): switched off, the same answers for 2-23 %
+    less work on three of the four, the same work on the fourth. On dev2 it decides
     nothing and costs work; its 3 concealed flips are not rerun yet, and it goes if
     they change nothing either (benchmarks/README.md, "The reruns")."""
 
@@ -172,8 +172,8 @@ class Policy:
     gave another verdict. Switched off (every promising entry of the top refitted
     first), they flip on 7 dev2 sets and 7 concealed ones; rerun on the 7 dev2 sets, no
     answer changed. What it buys is work, counted (5be3c2b, each beside a default
-    run): without it 174 %, 77 %, 3 % and 3 % more (sets 19, 10, 29, 07), the same on
-    38, 23 and 46: it keeps its place for that."""
+    run): without it 3-174 % more on four of the seven, the same on three (the gate
+    not reached at that commit): it keeps its place for that."""
 
     leader_alone_share: float = 0.90
     """When the leader's sizing alone (its own parameters, the baseline held) removes
@@ -208,8 +208,8 @@ class Policy:
     twice; rerun at both, the same entries and verdict. Switched off (0: every entry
     sized in a later round), it flips on 7 dev2 sets; rerun on all 7, no answer
     changed. What it buys is work, counted (5be3c2b, each beside a default run):
-    without it 66 %, 24 % and 7 % more (sets 28, 07, 46), the same on 38, 19, 10 and
-    05: it keeps its place for that."""
+    without it 7-66 % more on three of the seven, the same on four (the gate not
+    reached at that commit): it keeps its place for that."""
 
     second_look_chi2: float = 2.0
     """When every refit that would be accepted leaves a mean ``(e/σ)²`` above this, the
