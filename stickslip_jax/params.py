@@ -62,9 +62,9 @@ ACTUATOR_SCALARS = (
 COMMON_REQUIRED = ("Mp", "Dp", "Kp", "Ms", "Ds", "pi_thresholds", "pi_weights")
 COMMON_OPTIONAL = {"Kact2": 0.0, "N": 0.0, "F_ext": 0.0, "k_load": 0.0, "friction": None,
                    "fit_status": None}
-FIT_STATUS_DOC = ("how the identification that wrote the file judged its fit (only "
-                  "written when it is not a plain result, e.g. 'misspecified: ...'); "
-                  "metadata: no physics reads it")
+FIT_STATUS_DOC = ("how the fit that wrote the file (identify, diagnose) judged it (only "
+                  "written when it is not a plain result, e.g. 'misspecified: ...', "
+                  "'rival: ...'); metadata: no physics reads it")
 SLOT_DOCS = {
     "drive_stage": "the drive amplifier between the command and the piezo: one "
                    "{\"type\": ..., arguments} object (LowPassInput, SecondOrderInput, "
