@@ -20,6 +20,7 @@ from .adjoint import (
     with_forward_jacobian,
 )
 from .compilation_cache import use_compilation_cache
+from .design import DriveLimits, ExperimentPlan, design_experiment
 from .diagnose import CATALOGUE, DiagnoseConfig, Diagnosis, Policy, Verdict, diagnose
 from .drive_inference import DriveInfo, infer_drive
 from .files import InputOverwriteError, OutputExistsError
@@ -173,6 +174,7 @@ __all__ = [
     "step", "transition_alpha",
     "HysteresisOnlyModel", "Identification", "fit_hysteresis_only", "identify", "noise_sigma",
     "CATALOGUE", "DiagnoseConfig", "Diagnosis", "Policy", "Verdict", "diagnose",
+    "DriveLimits", "ExperimentPlan", "design_experiment",
     "ChainedOutput", "Creep", "CreepSpectrum", "ExponentialDrift", "LearnedForce", "LowPassInput",
     "PeriodicSensorError", "PositionRipple", "RateDependentStroke", "RateLagForm",
     "SaturatingViscosity", "SecondOrderInput",

@@ -83,6 +83,10 @@ SKIPS = (
 )
 
 REDUCTIONS = (
+    Change("stickslip design-experiment", "--fix Ms=0.0247",
+           "--fix Ms=0.0247 --entries stribeck,external_load",
+           "the README test asks it about two entries",
+           "its ten questions take about 2 min on two busy cores; two run its every step"),
     Change("ss.diagnose(", "ss.diagnose(", '__import__("inspect").signature(ss.diagnose).bind(',
            "the README test runs it with",
            "the same diagnosis as `stickslip diagnose fixtures/concealed/set_05 ... "
@@ -102,6 +106,7 @@ OUTPUTS = {
     "contacts": ("contacts.json",),
     "diagnose": ("diagnosis.json", "report.md", "params.json", "baseline_params.json",
                  "figures"),
+    "design-experiment": ("plan.json", "plan.md", "drives", "figures"),
 }
 
 PATH_OPTIONS = ("--out", "--plot")

@@ -11,6 +11,7 @@ import typer
 
 from . import (
     contacts_cmd,
+    design_cmd,
     diagnose_cmd,
     drive_cmd,
     identify_cmd,
@@ -65,6 +66,8 @@ for _name, _module, _command, _short in (
      "z_ba per recording, and a surface over the drives."),
     ("diagnose", diagnose_cmd, diagnose_cmd.diagnose_command,
      "Find, name and add the physics the model leaves out."),
+    ("design-experiment", design_cmd, design_cmd.design_command,
+     "The next recordings: drives that settle a diagnosis's ties."),
     ("contacts", contacts_cmd, contacts_cmd.contacts_command,
      "Preload, multi-contact runners, force generation."),
 ):

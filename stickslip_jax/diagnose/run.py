@@ -290,7 +290,7 @@ def _refined_after(problem: Problem, act: Actuator, rss: float,
                                after=", ".join(accepted))
 
 
-def _locate(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
+def locate_phase(problem: Problem, q0: np.ndarray, config: DiagnoseConfig):
     """Phase 2: each recording's residual analysis, the flagged ones, and the hints
     the probes use (shared residual peaks, the largest voltage slew, the shortest and
     longest recording, and each recording's model output, residual and noise, for
@@ -553,7 +553,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         f"the baseline is {'within' if baseline_adequate else 'beyond'} it")
 
     # 2. Locate.
-    analyses0, mismatch, hints = _locate(problem, base.q, config)
+    analyses0, mismatch, hints = locate_phase(problem, base.q, config)
     say(f"[baseline] NRMSE {100 * base.nrmse.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
         f"{len(mismatch)} recording(s) flagged; residual peaks "
         f"{', '.join(f'{f:.0f} Hz' for f in hints['peaks_Hz']) or 'none'}")
@@ -655,7 +655,7 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
             t0 = time.perf_counter()
             # The hints where the model now stands (a second mode's residual peak shows
             # once the first is fitted).
-            hints_now = _locate(problem, problem.evaluate(act)[2], config)[2]
+            hints_now = locate_phase(problem, problem.evaluate(act)[2], config)[2]
             refined_act, rss = refine_forms(problem, act, rss, accepted, hints_now,
                                             significance=significance, policy=policy,
                                             max_steps=max_steps, notes=notes)

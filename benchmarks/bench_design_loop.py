@@ -1,0 +1,146 @@
+"""The designed recordings on data (issue #68): does the plan name the right entry more
+often than the same recording time of the default protocol?
+
+For each development-split set (``--split dev2 --sets 40,15``): its 17 recordings are
+diagnosed as ``stickslip diagnose DIR --fix Ms=0.0247`` does (from the profile); the
+diagnosis's outputs are written and :func:`~stickslip_jax.design.design_experiment`
+plans the next recordings from them (default settings: as much recording time as the 17
+take). The planned drives are then recorded at the set's truth, with its hidden effect,
+by the independent generator (:func:`~stickslip_jax.testing.random_sets.
+hidden_actuator`, 16x finer steps, the set's noise level, a fresh noise seed), and so
+is the default protocol once more (the 17 drives again, another seed, the same total
+time). Each arm is diagnosed with the 17 plus its new recordings; a row says what each
+named first, what it left tied, and whether the right entry was named first.
+
+Each set's work goes in ``--work DIR/set_NN`` (diagnosis folders, plan, drives); a
+diagnosis already written there is read back rather than run again (resume).
+
+```sh
+.venv/bin/python benchmarks/bench_design_loop.py --split dev2 --sets 40 \\
+    --work out/design_loop --json out/design_loop.json      # ~30 min a set on 2 cores
+```
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import stickslip_jax as ss  # noqa: E402
+from stickslip_jax.design.report import write_plan  # noqa: E402
+from stickslip_jax.diagnose.report import write_diagnosis  # noqa: E402
+from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
+from stickslip_jax.testing import random_sets as rs  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results_record import commit_of  # noqa: E402
+
+import stickslip_jax.files  # noqa: E402,F401
+
+FIX = {"Ms": 0.0247}
+ARM_SEEDS = {"designed": 1_000_003, "default": 2_000_003}
+"""Added to the set's recording seed: each arm's new recordings get their own noise."""
+
+
+def _diagnosed(recs, folder: Path) -> dict:
+    """``diagnosis.json`` of ``recs`` in ``folder`` (run from the profile and written
+    there unless it is already)."""
+    path = folder / "diagnosis.json"
+    if not path.is_file():
+        d = ss.diagnose(recs, init=ss.lu2015_slc1720(), fix=FIX,
+                        echo=lambda s: print("   ", s, flush=True))
+        write_diagnosis(d, folder, figures=False)
+    return json.loads(path.read_text())
+
+
+def _summary(content: dict, hidden: tuple[str, ...]) -> dict:
+    named = [m["name"] for m in content["missing_physics"]]
+    tied = sorted({r for m in content["missing_physics"]
+                   for r in m["evidence"].get("indistinguishable_from", [])})
+    return {"verdict": content["verdict"], "named": named, "tied_with": tied,
+            "right_first": bool(named) and named[0] in hidden,
+            "right_untied": bool(named) and named[0] in hidden and not tied,
+            "chi2_final": content["final"]["chi2_per_sample"]}
+
+
+def run_set(spec: rs.SetSpec, work: Path) -> dict:
+    work.mkdir(parents=True, exist_ok=True)
+    recs = rs.make_recordings(spec)
+    t0 = time.perf_counter()
+    before = _diagnosed(recs, work / "diag0")
+    t_diag0 = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    plan = ss.design_experiment(recs, work / "diag0", fix=FIX,
+                                echo=lambda s: print("   ", s, flush=True))
+    t_plan = time.perf_counter() - t0
+    if not (work / "plan" / "plan.json").is_file():
+        (work / "plan").mkdir(exist_ok=True)
+        write_plan(plan, work / "plan", figures=False)
+    truth = rs.hidden_actuator(spec)
+    arms = {}
+    old_time = sum(r.n * r.dt for r in recs)
+    for arm, drives in (("designed", [r.drive for r in plan.recordings]),
+                        ("default", [d for d in paper_protocol()
+                                     for _ in range(round(plan.total_time_s / old_time))])):
+        new = [dataclasses.replace(r, name=f"{arm}_{k}_{r.name}") for k, r in enumerate(
+            simulate_set(truth, drives, noise_m=spec.noise_m,
+                         seed=spec.recording_seed + ARM_SEEDS[arm]))]
+        t0 = time.perf_counter()
+        content = _diagnosed(recs + new, work / f"diag_{arm}")
+        arms[arm] = {**_summary(content, spec.hidden), "wall_s": time.perf_counter() - t0,
+                     "recordings_added": len(new),
+                     "time_added_s": float(sum(r.n * r.dt for r in new))}
+    return {
+        "set": spec.name, "hidden": list(spec.hidden), "form": spec.form,
+        "noise_nm": spec.noise_m * 1e9, "before": _summary(before, spec.hidden),
+        "plan": {"questions": [{"label": q.label, "kind": q.kind, "entry": q.entry,
+                                "ratio_now": q.ratio_now, "ratio_default": q.ratio_default,
+                                "ratio_designed": q.ratio_designed}
+                               for q in plan.questions],
+                 "recordings": [r.drive.name + f" x{r.units}" for r in plan.recordings],
+                 "planned_time_s": plan.planned_time_s, "wall_s": t_plan,
+                 "timings_s": plan.timings_s},
+        "diagnosis_wall_s": t_diag0, "arms": arms, "commit": commit_of(),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--split", default="dev2", choices=["dev", "dev2"])
+    ap.add_argument("--sets", required=True, help="comma-separated set indices")
+    ap.add_argument("--work", type=Path, required=True)
+    ap.add_argument("--json", type=Path, required=True)
+    args = ap.parse_args()
+    ss.fast_cpu_loops()
+    rows = json.loads(args.json.read_text())["rows"] if args.json.is_file() else []
+    done = {r["set"] for r in rows}
+    specs = rs.split_sets(args.split)
+    for index in (int(i) for i in args.sets.split(",")):
+        spec = specs[index]
+        if spec.name in done:
+            continue
+        print(f"{spec.name}: {spec.effect} ({spec.form}), noise {spec.noise_m * 1e9:.2f} nm",
+              flush=True)
+        row = run_set(spec, args.work / spec.name)
+        rows.append(row)
+        ss.files.atomic_write_text(args.json, json.dumps(
+            {"split": args.split, "what": __doc__.split("\n\n")[0], "rows": rows},
+            indent=1, default=float) + "\n")
+        print(json.dumps({k: row[k] for k in ("set", "hidden", "before", "arms")},
+                         default=float), flush=True)
+    n = len(rows)
+    for arm in ("designed", "default"):
+        right = sum(r["arms"][arm]["right_untied"] for r in rows)
+        print(f"{arm}: right and untied on {right} of {n}")
+
+
+if __name__ == "__main__":
+    main()
