@@ -5,7 +5,9 @@ excess cost of the wrong model refitted to the truth's traces) from Jacobians at
 fitted models: the linearised refit. Here the truth's traces are simulated without
 noise on the recordings so far and on those plus the plan's, and the rival is refitted
 to them by the diagnosis's own Levenberg-Marquardt fit (every baseline quantity and its
-parts' free); its cost is the evidence, to compare with ``ratio × τ``.
+parts' free); its cost is the evidence, to compare with ``ratio × τ``. For an entry
+not named, also at the detection limit the plan states: the entry at that strength,
+on the recordings with the plan's, should cost the refitted rival ``τ``.
 
 ```sh
 .venv/bin/python benchmarks/bench_design_linear.py fixtures/identification \\
@@ -84,9 +86,23 @@ def main() -> None:
                        "rival_cost_unrefitted": before, "refit_s": wall}
                 print(json.dumps(row), flush=True)
                 rows.append(row)
+        if q.kind == "limit" and np.isfinite(outcome.limit_designed):
+            # The limit the plan states: the entry at it should just reach the tolerance
+            # on the recordings with the plan's (a small effect: where first order holds).
+            drives = list(recs) + new
+            sigmas = np.concatenate([sig_old, np.full(len(new), plan.noise_nm * 1e-9)])
+            before, after, wall = refit_cost(q.at_strength(outcome.limit_designed), q.rival,
+                                             drives, sigmas, fix, args.max_steps)
+            row = {"question": outcome.label, "truth": f"{q.entry} at the limit after",
+                   "strength": outcome.limit_designed, "rival": q.rival.label,
+                   "recordings": "plan", "predicted": plan.tolerances[2],
+                   "refitted": after, "rival_cost_unrefitted": before, "refit_s": wall}
+            print(json.dumps(row), flush=True)
+            rows.append(row)
     ss.files.atomic_write_text(args.json, json.dumps(
         {"what": __doc__.split("\n\n")[0], "data": str(args.data), "entry": args.entry,
          "plan": [r.drive.name + f" x{r.units}" for r in plan.recordings],
+         "tolerance_rss": {"now": plan.tolerances[0], "plan": plan.tolerances[2]},
          "commit": commit_of(), "rows": rows}, indent=1) + "\n")
 
 

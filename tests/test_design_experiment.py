@@ -197,3 +197,20 @@ def test_bad_input_is_refused_before_any_computation(reduced, tmp_path):
                                "--max-frequency", "5000"])
     assert fast.exit_code == 2 and "samples per period" in fast.output
     assert not (tmp_path / "p").exists()
+
+
+def test_no_columns_are_no_sensor_only_columns():
+    """A value-only program (no columns) of a model holding a sensor part: nothing to
+    sort (reshaping zero columns failed, on dev2 set_40's final model with a probe)."""
+    import jax
+
+    from stickslip_jax.identify.sensitivities import sensor_only_columns
+
+    act = eqx.tree_at(lambda a: a.output_map, ss.load_params(TRUTH),
+                      SensorOutput(delay=3e-6))
+    none = jax.tree.map(lambda x: np.zeros((0, *np.shape(x))), act)
+    assert sensor_only_columns(none).shape == (0,)
+    two = jax.tree.map(lambda x: np.zeros((2, *np.shape(x))), act)
+    two = eqx.tree_at(lambda a: a.output_map.delay, two, np.array([1.0, 0.0]))
+    two = eqx.tree_at(lambda a: a.piezo.Mp, two, np.array([0.0, 1.0]))
+    np.testing.assert_array_equal(sensor_only_columns(two), [True, False])

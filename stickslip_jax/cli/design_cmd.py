@@ -94,8 +94,14 @@ def design_command(
                 raise fail(str(err)) from None
             written = write_plan(plan, stage, figures=not no_figures)
     for q in plan.questions:
-        typer.echo(f"  {q.label}: evidence/tolerance {q.ratio_now:.3g} now, "
-                   f"{q.ratio_default:.3g} with the protocol again, "
-                   f"{q.ratio_designed:.3g} with the plan")
+        if q.kind == "limit":
+            unit = "" if q.unit in ("", "-") else f" {q.unit}"
+            typer.echo(f"  {q.entry}: detection limit {q.limit_now:.3g}{unit} now, "
+                       f"{q.limit_default:.3g} with the protocol again, "
+                       f"{q.limit_designed:.3g} with the plan")
+        else:
+            typer.echo(f"  {q.label}: evidence/tolerance {q.ratio_now:.3g} now, "
+                       f"{q.ratio_default:.3g} with the protocol again, "
+                       f"{q.ratio_designed:.3g} with the plan (at least 1: told apart)")
     typer.echo(f"wrote {out / written['plan'].relative_to(stage)} and "
                f"{len(plan.recordings)} drive file(s) in {out / 'drives'}")

@@ -217,13 +217,6 @@ def probe_at(act: Actuator, entry, hints: dict, label: str, strength: float) -> 
     return set_quantity(chosen.spec.getter, probe_act, start)
 
 
-def _residual(problem: Problem, act: Actuator) -> np.ndarray:
-    """The whitened residual of ``act`` on the problem's data (value only)."""
-    program = problem.program(act, [], {})
-    value = program.value
-    return np.asarray(value(np.zeros(0)) if value is not None else program(np.zeros(0))[0])
-
-
 def _residual_and_jacobian(problem: Problem, hyp: Hypothesis):
     names = baseline_free(hyp.actuator, problem.data, problem.fix) + list(hyp.specs)
     program = problem.program(hyp.actuator, names, hyp.specs)
@@ -255,7 +248,7 @@ def _at_the_limit(q: Question, problem: Problem, fit: tuple, rows, tol_now: floa
     strength, best = q.strength, None
     for _ in range(LIMIT_ITERATIONS):
         truth = q.at_strength(strength)
-        sep = Separation.of(r_fit - _residual(problem, truth), jac, rows)
+        sep = Separation.of(r_fit - problem.whitened_residual(truth)[0], jac, rows)
         ratio = sep.at(now) / tol_now
         if ratio > 0 and (best is None or abs(np.log(ratio)) < abs(np.log(best[2]))):
             best = (strength, truth, ratio, sep)

@@ -77,7 +77,11 @@ def plan_markdown(plan: ExperimentPlan, figure: str | None) -> str:
                          strict=True)]
         lines.append(f"| {q.label} | " + " | ".join(cells) + " |")
     lines += ["", "To first order in the refitted model's move; each longer recording "
-              "counts its periods as repeats of one unit's."]
+              "counts its periods as repeats of one unit's. For an entry not named, the "
+              "ratios are at today's limit strength, where the new recordings can make "
+              "its effect large and the first order overstate the evidence (a refit "
+              "absorbs more than a linear move); the limit after is a small effect, "
+              "where the first order holds."]
     if plan.notes:
         lines += ["", "Notes:", ""] + [f"- {n}" for n in plan.notes]
     if figure:

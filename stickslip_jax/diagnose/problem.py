@@ -321,6 +321,12 @@ class Problem:
 
     def evaluate(self, act: Actuator):
         """(whitened RSS, NRMSE per recording, simulated outputs) of ``act``."""
+        r, q = self.whitened_residual(act)
+        return float(r @ r), self.nrmse_from_whitened(r), q
+
+    def whitened_residual(self, act: Actuator) -> tuple[np.ndarray, np.ndarray]:
+        """The whitened residual of ``act`` (padding 0) and its simulated outputs
+        (B, T) [m], from one value-only simulation."""
         res = self.residuals(ParameterMap.make(act, []))
         if default_batching() == "map":
             q = self.recording_programs(act).simulate(act, res.inner.plan)
@@ -329,7 +335,7 @@ class Problem:
         r = res.whiten(res.inner.from_output(q, xp=np))
         self.budget.charge(evaluation_work(self.samples, 0,
                                            self.plan_factor(act, res.inner.plan)))
-        return float(r @ r), self.nrmse_from_whitened(r), np.asarray(q)
+        return np.asarray(r), np.asarray(q)
 
     def chi2_per_recording(self, nrmse) -> np.ndarray:
         """Mean ``(e/σ)²`` per recording from its NRMSE [-] (:meth:`nrmse_from_whitened`)."""

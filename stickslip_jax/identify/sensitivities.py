@@ -135,7 +135,7 @@ def sensor_only_columns(tangents) -> np.ndarray:
     leaves = jax.tree.leaves(tangents)
     k = leaves[0].shape[0]
     sensor = {id(x) for x in jax.tree.leaves(getattr(tangents, "output_map", None))}
-    if not sensor:
+    if not sensor or k == 0:  # no sensor leaves, or no columns (a value-only program)
         return np.zeros(k, dtype=bool)
     moving = np.zeros(k, dtype=bool)
     for x in leaves:
