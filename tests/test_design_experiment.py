@@ -107,6 +107,7 @@ def reduced(tmp_path_factory):
             "indistinguishable_from": ["rate_dependent_hysteresis"]}}],
         "detection_limits": {"creep": limits["creep"]},
         "significance": {"z": 3.0}, "config": {}, "residual_peaks_Hz": [],
+        "indistinguishable_here": {"preload_dependence": "one preload in every recording"},
     }
     (folder / "diagnosis.json").write_text(json.dumps(content))
     rec_dir = tmp_path_factory.mktemp("recs")
@@ -152,6 +153,7 @@ def test_the_plan_fits_its_time_and_says_what_each_recording_answers(plan):
     assert tie.ratio_designed > tie.ratio_now
     assert all(np.isfinite([q.ratio_now, q.ratio_default, q.ratio_designed]).all()
                for q in plan.questions)
+    assert any(n.startswith("preload_dependence: not asked") for n in plan.notes)
 
 
 def test_the_cli_writes_the_plan_and_drive_files_that_load_back(reduced, tmp_path):

@@ -169,6 +169,9 @@ def ask_questions(content: dict, final: Actuator, baseline: Actuator,
             tied.add(rival)
             questions.append(Question("tie", rival, final_h,
                                       Hypothesis.of(rival, rivals[rival])))
+    for name, why in (content.get("indistinguishable_here") or {}).items():
+        if entries is None or name in entries:
+            notes.append(f"{name}: not asked, no drive settles it ({why})")
     for name, lim in (content.get("detection_limits") or {}).items():
         if name in named or name in tied or name not in NAMES:
             continue
