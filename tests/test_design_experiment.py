@@ -125,7 +125,23 @@ CANDIDATES = [DriveSpec("sawtooth", 60.0, 1000.0, "forward", 0.02),
 def plan(reduced):
     recs, folder, _, _ = reduced
     return ss.design_experiment(recs, folder, fix=FIX, candidates=CANDIDATES,
-                                total_time_s=0.2)
+                                total_time_s=0.2, entries=["creep", "sensor_delay"])
+
+
+def test_a_tie_is_asked_alone_unless_entries_are_named(reduced):
+    from stickslip_jax.design.plan import ask_questions
+
+    _, folder, _, _ = reduced
+    content = json.loads((folder / "diagnosis.json").read_text())
+    final = ss.load_params(folder / "params.json")
+    rivals = {"rate_dependent_hysteresis": ss.load_params(
+        folder / "rivals" / "rate_dependent_hysteresis.json")}
+    asked, notes = ask_questions(content, final, final, rivals, {})
+    assert [(q.kind, q.entry) for q in asked] == [("tie", "rate_dependent_hysteresis")]
+    assert any("asked with --entries" in n for n in notes)
+    assert any(n.startswith("preload_dependence: not asked") for n in notes)
+    asked, _ = ask_questions(content, final, final, rivals, {}, entries=["creep"])
+    assert [(q.kind, q.entry) for q in asked] == [("limit", "creep")]
 
 
 def test_the_plan_starts_from_the_score_tests_detection_limit(reduced, plan):
@@ -153,7 +169,7 @@ def test_the_plan_fits_its_time_and_says_what_each_recording_answers(plan):
     assert tie.ratio_designed > tie.ratio_now
     assert all(np.isfinite([q.ratio_now, q.ratio_default, q.ratio_designed]).all()
                for q in plan.questions)
-    assert any(n.startswith("preload_dependence: not asked") for n in plan.notes)
+
 
 
 def test_the_cli_writes_the_plan_and_drive_files_that_load_back(reduced, tmp_path):

@@ -149,10 +149,13 @@ def _config_of(content: dict) -> DiagnoseConfig:
 def ask_questions(content: dict, final: Actuator, baseline: Actuator,
                   rivals: dict[str, Actuator], hints: dict,
                   entries: Sequence[str] | None = None) -> tuple[list[Question], list[str]]:
-    """The questions a diagnysis leaves (:mod:`.hypotheses`) and notes on those it
+    """The questions a diagnosis leaves (:mod:`.hypotheses`) and notes on those it
     could not ask: ties of each named entry with each rival written, then every entry
-    with a detection limit that was not named and is not a rival (``entries``: only
-    these), at that limit on the final model."""
+    with a detection limit that was not named and is not a rival, at that limit on the
+    final model. By default a diagnosis with a tie asks its ties alone: an entry named
+    but not told from a rival is the answer in doubt, and the plan's time is not spread
+    over the limits of a dozen entries nobody named. ``entries``: ask about these (the
+    ties they take part in and their limits), whatever else there is."""
     named = [m["name"] for m in content.get("missing_physics", [])]
     final_h = Hypothesis.of("+".join(named) or "baseline", final)
     questions: list[Question] = []
@@ -195,6 +198,12 @@ def ask_questions(content: dict, final: Actuator, baseline: Actuator,
         questions.append(Question("limit", name, Hypothesis.of(f"{name} at its limit", truth),
                                   final_h, float(lim["strength"]), lim.get("unit", ""),
                                   at_strength))
+    if entries is None and any(q.kind == "tie" for q in questions):
+        limits = [q.entry for q in questions if q.kind == "limit"]
+        questions = [q for q in questions if q.kind == "tie"]
+        if limits:
+            notes.append(f"the ties asked alone; the detection limits of {', '.join(limits)}"
+                         f" are asked with --entries")
     return questions, notes
 
 
