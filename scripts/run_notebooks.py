@@ -8,7 +8,8 @@ fresh kernel of this interpreter, from the ``notebooks/`` folder; the executed
 ``.ipynb`` is written to ``--out`` (the committed notebooks stay output-free). A
 failing cell stops with its traceback and a non-zero exit. ``--quick`` sets
 ``STICKSLIP_NOTEBOOK_QUICK=1`` (the reduced sizes CI uses). Full sizes take about
-2 min for notebooks 1, 3, 5, 6 together, 1.5 min for 2 and 10-15 min for 4 on two cores.
+2 min for notebooks 1, 3, 5, 6 together, 1.5 min for 2, 10-15 min for 4 and about
+half an hour for 7 on two cores.
 """
 
 import argparse

@@ -20,8 +20,8 @@ NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 SOURCES = sorted(NOTEBOOKS.glob("[0-9][0-9]_*.py"))
 
 
-def test_there_are_six_notebooks():
-    assert len(SOURCES) == 6, [p.name for p in SOURCES]
+def test_there_are_seven_notebooks():
+    assert len(SOURCES) == 7, [p.name for p in SOURCES]
 
 
 def _runner():
