@@ -18,6 +18,7 @@ diagnosis already written there is read back rather than run again (resume).
 ```sh
 .venv/bin/python benchmarks/bench_design_loop.py --split dev2 --sets 40 \\
     --work out/design_loop --json out/design_loop.json      # ~30 min a set on 2 cores
+.venv/bin/python benchmarks/bench_design_loop.py --table out/design_loop.json  # the rows
 ```
 """
 
@@ -112,13 +113,52 @@ def run_set(spec: rs.SetSpec, work: Path) -> dict:
     }
 
 
+def _answer(arm: dict) -> str:
+    named = ", ".join(arm["named"]) or "nothing"
+    tie = f", tied with {', '.join(arm['tied_with'])}" if arm["tied_with"] else ""
+    return f"{named}{tie} ({arm['verdict']}, (e/σ)² {arm['chi2_final']:.3f})"
+
+
+def table(paths: list[Path]) -> str:
+    """The rows of the JSON files ``paths`` (each one split's) as a markdown table,
+    with the count of right and untied answers per arm."""
+    lines = ["| set (hidden, form, noise) | the diagnosis | plan | designed | "
+             "the protocol again |", "| --- | --- | --- | --- | --- |"]
+    count = {"designed": 0, "default": 0}
+    n = 0
+    for path in paths:
+        content = json.loads(path.read_text())
+        for r in content["rows"]:
+            n += 1
+            for arm in count:
+                count[arm] += r["arms"][arm]["right_untied"]
+            plan = (f"{len(r['plan']['recordings'])} recordings, "
+                    f"{r['plan']['planned_time_s']:.3f} s, {r['plan']['wall_s']:.0f} s")
+            mark = {a: " **right**" if r["arms"][a]["right_untied"] else "" for a in count}
+            lines.append(
+                f"| {content['split']} {r['set']} ({', '.join(r['hidden'])}, {r['form']}, "
+                f"{r['noise_nm']:.2f} nm) | {_answer(r['before'])} | {plan} | "
+                f"{_answer(r['arms']['designed'])}{mark['designed']} | "
+                f"{_answer(r['arms']['default'])}{mark['default']} |")
+    lines.append(f"\nRight and untied: designed {count['designed']} of {n}, the protocol "
+                 f"again {count['default']} of {n}.")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--split", default="dev2", choices=["dev", "dev2"])
-    ap.add_argument("--sets", required=True, help="comma-separated set indices")
-    ap.add_argument("--work", type=Path, required=True)
-    ap.add_argument("--json", type=Path, required=True)
+    ap.add_argument("--sets", help="comma-separated set indices")
+    ap.add_argument("--work", type=Path)
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--table", type=Path, nargs="+", metavar="JSON",
+                    help="print the rows of these files as one table and stop")
     args = ap.parse_args()
+    if args.table:
+        print(table(args.table))
+        return
+    if not (args.sets and args.work and args.json):
+        ap.error("--sets, --work and --json are needed to run sets")
     ss.fast_cpu_loops()
     rows = json.loads(args.json.read_text())["rows"] if args.json.is_file() else []
     done = {r["set"] for r in rows}
