@@ -10,7 +10,9 @@ by the independent generator (:func:`~stickslip_jax.testing.random_sets.
 hidden_actuator`, 16x finer steps, the set's noise level, a fresh noise seed), and so
 is the default protocol once more (the 17 drives again, another seed, the same total
 time). Each arm is diagnosed with the 17 plus its new recordings; a row says what each
-named first, what it left tied, and whether the right entry was named first.
+named first, what it left tied, and whether the right entry was named first. A set
+whose diagnosis ends neither tied nor baseline adequate is not one the loop asks about:
+its row says so and nothing is planned.
 
 Each set's work goes in ``--work DIR/set_NN`` (diagnosis folders, plan, drives); a
 diagnosis already written there is read back rather than run again (resume).
@@ -78,6 +80,13 @@ def run_set(spec: rs.SetSpec, work: Path) -> dict:
     t0 = time.perf_counter()
     before = _diagnosed(recs, work / "diag0")
     t_diag0 = time.perf_counter() - t0
+    head = {"set": spec.name, "hidden": list(spec.hidden), "form": spec.form,
+            "noise_nm": spec.noise_m * 1e9, "before": _summary(before, spec.hidden)}
+    if not (head["before"]["tied_with"] or before["verdict"] == "baseline adequate"):
+        # Not a set the issue asks about: the diagnosis has an answer without a tie
+        # (right or wrong), or no catalogue answer at all.
+        return {**head, "skipped": "the diagnosis ends neither tied nor baseline adequate",
+                "diagnosis_wall_s": t_diag0, "commit": commit_of()}
     t0 = time.perf_counter()
     plan = ss.design_experiment(recs, work / "diag0", fix=FIX,
                                 echo=lambda s: print("   ", s, flush=True))
@@ -100,8 +109,7 @@ def run_set(spec: rs.SetSpec, work: Path) -> dict:
                      "recordings_added": len(new),
                      "time_added_s": float(sum(r.n * r.dt for r in new))}
     return {
-        "set": spec.name, "hidden": list(spec.hidden), "form": spec.form,
-        "noise_nm": spec.noise_m * 1e9, "before": _summary(before, spec.hidden),
+        **head,
         "plan": {"questions": [{"label": q.label, "kind": q.kind, "entry": q.entry,
                                 "ratio_now": q.ratio_now, "ratio_default": q.ratio_default,
                                 "ratio_designed": q.ratio_designed}
@@ -125,10 +133,14 @@ def table(paths: list[Path]) -> str:
     lines = ["| set (hidden, form, noise) | the diagnosis | plan | designed | "
              "the protocol again |", "| --- | --- | --- | --- | --- |"]
     count = {"designed": 0, "default": 0}
-    n = 0
+    n, skipped = 0, []
     for path in paths:
         content = json.loads(path.read_text())
         for r in content["rows"]:
+            if "skipped" in r:
+                skipped.append(f"{content['split']} {r['set']} ({', '.join(r['hidden'])}): "
+                               f"{_answer(r['before'])}")
+                continue
             n += 1
             for arm in count:
                 count[arm] += r["arms"][arm]["right_untied"]
@@ -142,6 +154,9 @@ def table(paths: list[Path]) -> str:
                 f"{_answer(r['arms']['default'])}{mark['default']} |")
     lines.append(f"\nRight and untied: designed {count['designed']} of {n}, the protocol "
                  f"again {count['default']} of {n}.")
+    if skipped:
+        lines.append("\nNot asked (the diagnosis ends neither tied nor baseline adequate): "
+                     + "; ".join(skipped) + ".")
     return "\n".join(lines)
 
 
@@ -174,12 +189,9 @@ def main() -> None:
         ss.files.atomic_write_text(args.json, json.dumps(
             {"split": args.split, "what": __doc__.split("\n\n")[0], "rows": rows},
             indent=1, default=float) + "\n")
-        print(json.dumps({k: row[k] for k in ("set", "hidden", "before", "arms")},
-                         default=float), flush=True)
-    n = len(rows)
-    for arm in ("designed", "default"):
-        right = sum(r["arms"][arm]["right_untied"] for r in rows)
-        print(f"{arm}: right and untied on {right} of {n}")
+        print(json.dumps({k: row[k] for k in ("set", "hidden", "before", "arms", "skipped")
+                          if k in row}, default=float), flush=True)
+    print(table([args.json]))
 
 
 if __name__ == "__main__":
