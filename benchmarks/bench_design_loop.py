@@ -177,8 +177,9 @@ def main() -> None:
     ss.fast_cpu_loops()
     rows = json.loads(args.json.read_text())["rows"] if args.json.is_file() else []
     done = {r["set"] for r in rows}
-    specs = rs.split_sets(args.split)
-    for index in (int(i) for i in args.sets.split(",")):
+    indices = [int(i) for i in args.sets.split(",")]
+    specs = rs.split_sets(args.split, max(indices) + 1)  # past the design's size as well
+    for index in indices:
         spec = specs[index]
         if spec.name in done:
             continue
