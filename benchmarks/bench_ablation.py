@@ -75,7 +75,6 @@ RULE_OFF = {
     "explained_min": 0.0,        # any share explains: no "partly", no structured rest
     "partial_min": math.inf,     # no partial answers
     "excess_min": 0.0,           # shares of the excess taken however small it is
-    "wrong_sign_share": math.inf,  # a wrong-sign entry sized only on its own rank
     "competitive_share": 0.0,    # every promising entry of the top gets a first refit
     "leader_alone_share": math.inf,  # the leader never refitted alone
     "leader_alone_lead": math.inf,   # no competitor keeps its first refit beside it

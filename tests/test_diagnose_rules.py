@@ -41,7 +41,7 @@ from stickslip_jax.diagnose.rules import (
     size_before_polish,
     why_not_refitted,
 )
-from stickslip_jax.diagnose.sizing import worth_sizing_after_acceptance
+from stickslip_jax.diagnose.sizing import chosen_for_sizing, worth_sizing_after_acceptance
 from stickslip_jax.identify.solve import solve_least_squares
 
 
@@ -113,6 +113,24 @@ def test_after_an_acceptance_only_entries_scoring_a_share_of_the_excess_are_size
     assert big[2].note and not big[0].note
     # Nothing left over the noise: the floor is zero and every entry is kept.
     assert len(worth_sizing_after_acceptance(_ranked(("creep", 1.0, 0.0)), -5.0)) == 1
+
+
+def test_round_one_sizes_the_top_admissible_scores_and_every_seeded_entry():
+    results = _ranked(("creep", 9.0e3, 0.0), ("sensor_delay", -8.0e3, 0.0),
+                      ("stribeck", 5.0e3, 0.0), ("structural_mode", 1.0e2, 0.0),
+                      ("external_load", -2.0e3, 0.0))
+    said = []
+    chosen = chosen_for_sizing(results, seeded=set(), size_at_most=2, excess_left=None,
+                               say=said.append)
+    # Admissible signs first, whatever a wrong sign's |score|: a large wrong-sign score
+    # is not sized past the cap (the removed wrong_sign_share rule did that).
+    assert [r.name for r in chosen] == ["creep", "stribeck"]
+    # A seeded entry past the cap is sized anyway, once.
+    chosen = chosen_for_sizing(results, seeded={"external_load", "creep"}, size_at_most=3,
+                               excess_left=None, say=said.append)
+    assert [r.name for r in chosen] == ["creep", "stribeck", "structural_mode",
+                                        "external_load"]
+    assert not said
 
 
 def test_the_fallback_refits_every_other_sized_entry_but_those_pointing_the_wrong_way():

@@ -55,8 +55,6 @@ class Policy:
     ``excess_min``              0.01      excess (share of N) below which shares of it
                                           are undefined
     ``size_at_most``            5         entries sized per round
-    ``wrong_sign_share``        0.2       share of the largest ``|S|`` that sizes a
-                                          wrong-sign entry anyway
     ``competitive_share``       0.25      share of the leader's rank value that earns a
                                           first refit beside it
     ``leader_alone_share``      0.90      share of the excess the leader's sizing
@@ -142,22 +140,14 @@ class Policy:
 
     size_at_most: int = 5
     """Entries sized per round, the largest ``|S|`` first (admissible signs before wrong
-    ones), besides the wrong-sign and seeded entries sized anyway. Work, not evidence:
+    ones), besides the seeded entries sized anyway. Work, not evidence:
     each sizing is a small fit of the entry's own 1-3 parameters with the baseline
-    held, and the sizing's drop ranks the refits."""
-
-    wrong_sign_share: float = 0.2
-    """An entry whose probes all have the wrong first-order sign is sized anyway when
-    its ``|S|`` reaches this share of the round's largest: a large effect that the
-    polished baseline bent itself to mimic can turn the first-order sign around. Tuned
-    on the concealed sets; no statistical derivation yet. Ablation (dev2): which entries
-    are sized flips on 4 sets at half, 3 at twice; rerun on all 7, none named another
-    entry or gave another verdict. Switched off, it flips the sizing on 4 dev2 sets and
-    3 concealed ones; rerun on the 4 dev2 sets, no answer changed. Its work, counted
-    (5be3c2b, each beside a default run): switched off, the same answers for 2-23 %
-    less work on three of the four, the same work on the fourth. On dev2 it decides
-    nothing and costs work; its 3 concealed flips are not rerun yet, and it goes if
-    they change nothing either (benchmarks/README.md, "The reruns")."""
+    held, and the sizing's drop ranks the refits. A wrong-sign entry past them was
+    once sized anyway when its ``|S|`` reached a fifth of the largest (a large effect
+    the polished baseline bent itself to mimic can turn the first-order sign): switched
+    off, that rule changed no answer on the 4 dev2 sets and the 3 concealed ones whose
+    sizings it flips, for 2-23 % less work, and was removed (benchmarks/README.md,
+    "What the ablation decided")."""
 
     competitive_share: float = 0.25
     """Below the leader, an entry gets a first refit (every baseline parameter freed:

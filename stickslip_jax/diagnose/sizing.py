@@ -258,21 +258,14 @@ def chosen_for_sizing(results: list[CandidateResult], seeded: set[str], size_at_
                       excess_left: float | None, say: Callable[[str], None],
                       policy: Policy = DEFAULT_POLICY) -> list[CandidateResult]:
     """The entries of ``results`` to size: admissible signs first, then by |score|, the
-    first ``size_at_most``; and any entry whose first-order sign is wrong but whose
-    |score| reaches :attr:`~.Policy.wrong_sign_share` of the best (a large effect the
-    polished baseline bent itself to mimic can flip the first-order sign); and every
-    entry with seeds (``seeded``: names), whose cost is rugged in a nonlinear
-    parameter, so that a score taken at zero effect says little about an effect at a
-    distance. After an acceptance (``excess_left``: the (e/σ)² over the noise the
-    accepted entries left; None in round one) only those
+    first ``size_at_most``; and every entry with seeds (``seeded``: names), whose cost
+    is rugged in a nonlinear parameter, so that a score taken at zero effect says little
+    about an effect at a distance. After an acceptance (``excess_left``: the (e/σ)²
+    over the noise the accepted entries left; None in round one) only those
     :func:`worth_sizing_after_acceptance`. Entries below :attr:`~.Policy.score_min` are
     chosen but not sized (:func:`size_entries`)."""
     order = sorted(results, key=lambda r: (r.score < 0, -abs(r.score)))
-    best_score = max((abs(r.score) for r in results), default=0.0)
-    chosen = order[:size_at_most] + [
-        r for r in order[size_at_most:]
-        if (r.score < 0 and abs(r.score) >= policy.wrong_sign_share * best_score)
-        or r.name in seeded]
+    chosen = order[:size_at_most] + [r for r in order[size_at_most:] if r.name in seeded]
     if excess_left is not None:
         chosen = worth_sizing_after_acceptance(chosen, excess_left, policy)
         if not chosen:
