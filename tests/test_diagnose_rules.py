@@ -28,7 +28,7 @@ from stickslip_jax.diagnose.policy import (
     Policy,
 )
 from stickslip_jax.diagnose.problem import ProjectedResiduals
-from stickslip_jax.diagnose.records import RefitOutcome, SizingOutcome, amended
+from stickslip_jax.diagnose.records import Acceptance, RefitOutcome, SizingOutcome, amended
 from stickslip_jax.diagnose.results import CandidateResult, CandidateStatus
 from stickslip_jax.diagnose.rules import (
     fallback_refits,
@@ -411,7 +411,7 @@ def test_a_mode_too_damped_to_ring_is_no_resonance_and_never_named():
     # The next refit that explains is named instead; alone, nothing is.
     other = _refitted("contact_damping", 0.76, delta=-500.0)
     best = _accept([r, other], Policy(), _significance(), lambda _: None)
-    assert best is other and best.indistinguishable_from == []
+    assert best is other and best.indistinguishable_from == ()
     assert _accept([r], Policy(), _significance(), lambda _: None) is None
     assert "not the physics" in r.note
 
@@ -429,6 +429,12 @@ def test_a_partial_answer_is_kept_when_nothing_explains_and_only_then():
     partly, wrong = _refitted("creep", 0.6, delta=-900.0), _refitted("external_load", 0.3)
     best = _accept([wrong, partly], Policy(), sig, say)
     assert best is partly and best.partial and best.accepted
+    # The decision is one frozen record, made by the acceptance alone.
+    assert best.decision == Acceptance(accepted=True, partial=True,
+                                       indistinguishable_from=best.indistinguishable_from)
+    with pytest.raises(AttributeError):
+        best.accepted = False
+    assert not wrong.accepted and wrong.decision == Acceptance()
     none = _accept([_refitted("creep", 0.3)], Policy(), sig, say)
     assert none is None
 

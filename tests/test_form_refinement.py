@@ -17,7 +17,7 @@ from stickslip_jax.diagnose.catalogue import candidate
 from stickslip_jax.diagnose.form_refinement import refine_forms
 from stickslip_jax.diagnose.policy import Policy
 from stickslip_jax.diagnose.problem import Problem
-from stickslip_jax.diagnose.records import RefitOutcome
+from stickslip_jax.diagnose.records import Acceptance, RefitOutcome
 from stickslip_jax.diagnose.results import CandidateResult
 from stickslip_jax.drive_path import has_closed_form
 from stickslip_jax.identify.dataset import Dataset
@@ -195,7 +195,8 @@ def _accepted(problem, model, rss, stage):
     before = 3.0 * rss  # a round start the entry took down to ``rss``
     outcome = RefitOutcome(actuator=model, rss_before=before, rss_after=rss, added=2,
                            params={n: float(s.getter(model)) for n, s in stage.items()})
-    return CandidateResult("drive_bandwidth", refit=outcome, accepted=True)
+    return CandidateResult("drive_bandwidth", refit=outcome,
+                           decision=Acceptance(accepted=True))
 
 
 def test_an_accepted_tanh_slew_gets_the_corner_the_data_ask_for(hard_limited):

@@ -29,6 +29,7 @@ from ..significance import Significance, per_recording_chi2
 from .catalogue import candidate
 from .policy import Policy
 from .problem import Problem, baseline_free
+from .records import amended
 from .results import CandidateResult
 from .rules import acceptable
 
@@ -121,7 +122,8 @@ def refine_forms(problem: Problem, act: Actuator, rss: float, accepted: Sequence
                 values = ", ".join(f"{k}={v:.4g}" for k, v in res.params.items())
                 res.add_note(f"form refined: {values}")
                 # A partial answer whose refined form explains the residual is whole.
-                res.partial = res.partial and not acceptable(res, policy)
+                res.decision = amended(res.decision,
+                                       partial=res.partial and not acceptable(res, policy))
                 act, rss = fitted, rss_new
                 said += ": kept, the entry's form is the refined one."
             else:

@@ -5,7 +5,8 @@ pass that improves on it (a refit carried on, a re-identification) makes a new o
 :class:`SizingOutcome` is the sizing phase's (what an entry's sizings removed; the fits
 themselves, to go on from, are :class:`~.sizing.HeldSizing` and
 :class:`~.sizing.FreeSizing`), :class:`RefitOutcome` the refit phase's
-(:func:`~.refit.record_refit`).
+(:func:`~.refit.record_refit`), :class:`Acceptance` the acceptance's
+(:func:`~.run._accept`).
 """
 
 from __future__ import annotations
@@ -93,7 +94,28 @@ class RefitOutcome:
     (:func:`~.form_band.parameter_draws`: name → values); empty when not drawn."""
 
 
+@dataclass(frozen=True)
+class Acceptance:
+    """The acceptance's decision on an entry of the round's refits (made by
+    :func:`~.run._accept` for the one it judged; a later form refinement that makes a
+    partial answer whole amends :attr:`partial`). The defaults are "not judged"."""
+
+    accepted: bool = False
+    """Named: accepted whole or as a partial answer."""
+    partial: bool = False
+    """Accepted as a partial answer: it removes a share of the excess between
+    :attr:`~.Policy.partial_min` and :attr:`~.Policy.explained_min`
+    (:func:`~.rules.acceptable_partly`)."""
+    indistinguishable_from: tuple[str, ...] = ()
+    """The refitted entries the data cannot tell from it
+    (:func:`~.rules.indistinguishable`), whether or not it was accepted."""
+
+
+NOT_JUDGED = Acceptance()
+
+
 def amended(record, **fields):
-    """A new record: ``record`` (a :class:`SizingOutcome` or :class:`RefitOutcome`; None:
-    a refit not measured) with ``fields`` changed; ``record`` itself is left as it was."""
+    """A new record: ``record`` (a :class:`SizingOutcome`, :class:`RefitOutcome` or
+    :class:`Acceptance`; None: a refit not measured) with ``fields`` changed; ``record``
+    itself is left as it was."""
     return dataclasses.replace(RefitOutcome() if record is None else record, **fields)

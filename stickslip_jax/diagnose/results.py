@@ -14,7 +14,7 @@ from ..model.actuator import Actuator
 from .locate import RecordingResidual
 from .policy import DEFAULT_POLICY, Policy
 from .problem import FIRST_ORDER_REACH
-from .records import NOT_SIZED, RefitOutcome, SizingOutcome
+from .records import NOT_JUDGED, NOT_SIZED, Acceptance, RefitOutcome, SizingOutcome
 
 if TYPE_CHECKING:  # config -> passes -> refit -> results
     from .config import DiagnoseConfig
@@ -81,7 +81,8 @@ def _from_record(record: str, name: str, absent=None) -> property:
     (``sizing`` or ``refit``); ``absent``'s when that record is None."""
     def get(self):
         return getattr(getattr(self, record) or absent, name)
-    kind = {"sizing": "SizingOutcome", "refit": "RefitOutcome"}[record]
+    kind = {"sizing": "SizingOutcome", "refit": "RefitOutcome",
+            "decision": "Acceptance"}[record]
     return property(get, doc=f"Its {record}'s ``{name}`` (:class:`~.records.{kind}`).")
 
 
@@ -123,12 +124,10 @@ class CandidateResult:
     """Why the refitted values are not the physics the entry names, in words; empty
     when they are (:meth:`~.catalogue.base.CatalogueEntry.implausible`). An implausible
     refit explains nothing and is never accepted (:mod:`.rules`)."""
-    accepted: bool = False
-    partial: bool = False
-    """Accepted as a partial answer: it removes a share of the excess between
-    :attr:`~.Policy.partial_min` and :attr:`~.Policy.explained_min`
-    (:func:`~.rules.acceptable_partly`)."""
-    indistinguishable_from: list[str] = field(default_factory=list)
+    decision: Acceptance = NOT_JUDGED
+    """The acceptance's decision on it (:class:`~.records.Acceptance`); the
+    :attr:`accepted`, :attr:`partial` and :attr:`indistinguishable_from` properties
+    read it."""
     note: str = ""
     """What happened to the entry, in words, for the reports (never read by a
     decision: :attr:`status` is)."""
@@ -164,6 +163,9 @@ class CandidateResult:
     held_out = _from_refit("held_out")
     predicts = _from_refit("predicts")
     param_draws = _from_refit("param_draws")
+    accepted = _from_record("decision", "accepted")
+    partial = _from_record("decision", "partial")
+    indistinguishable_from = _from_record("decision", "indistinguishable_from")
 
     @property
     def size_free_extrapolated(self) -> bool:

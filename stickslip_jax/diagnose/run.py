@@ -1,7 +1,10 @@
 """The diagnosis loop: baseline, locate, score the catalogue, size, refit, accept, repeat.
 
-:func:`diagnose` reads as its phases; each lives in its own module, and every threshold
-it decides by is a field of its :class:`~.policy.Policy`. What the sizing and the refit
+:func:`diagnose` reads as its phases (:func:`_baseline_phase`, :func:`locate_phase`, the
+rounds of :func:`_run_rounds`, :func:`_final_phase`); each lives in its own module, and
+every threshold it decides by is a field of its :class:`~.policy.Policy`. Within the
+rounds one record (:class:`_Rounds`) says where the model stands; what every round reads
+is made once (:class:`_Context`). What the sizing and the refit
 phases make of an entry are frozen records (:mod:`.records`: :class:`~.records.
 SizingOutcome`, :class:`~.records.RefitOutcome`) on its
 :class:`~.results.CandidateResult`, made once by their phase and read by the later ones:
@@ -96,7 +99,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -122,6 +125,7 @@ from .locate import analyse_recording, mismatch_entries, residual_peaks
 from .passes import RefitPass, RefitRound, Reidentification
 from .policy import Policy
 from .problem import Problem, baseline_free, recentred
+from .records import Acceptance
 from .refit import RefitSetup, RoundStart
 from .results import CandidateResult, CandidateStatus, Diagnosis, Verdict
 from .rules import (
@@ -394,19 +398,20 @@ def _accept(refitted: list[CandidateResult], policy: Policy, significance: Signi
     that :func:`~.rules.acceptable_partly` is accepted as a partial answer. None, with a
     note on the best, when nothing is accepted."""
     # The best-scoring entry that explains the residual; else the best overall.
-    best = next((r for r in refitted if explains(r, policy)), refitted[0])
+    best, partial = next((r for r in refitted if explains(r, policy)), refitted[0]), False
     if not acceptable(best, policy):
         partly = next((r for r in refitted if acceptable_partly(r, policy)), None)
         if partly is not None:
-            best, best.partial = partly, True
-    best.indistinguishable_from = [r.name for r in refitted if r is not best
-                                   if indistinguishable(r, best, significance, policy)]
-    if best.partial or acceptable(best, policy):
-        best.accepted = True
+            best, partial = partly, True
+    rivals = tuple(r.name for r in refitted if r is not best
+                   if indistinguishable(r, best, significance, policy))
+    accepted = partial or acceptable(best, policy)
+    best.decision = Acceptance(accepted, partial, rivals)
+    if accepted:
         held = ""
         if best.held_out:
             held = f"; regimes left out: cost {sum(best.held_out.values()):.5g}"
-        say(f"[accept] {best.name}{' (partial answer)' if best.partial else ''}: ΔBIC "
+        say(f"[accept] {best.name}{' (partial answer)' if partial else ''}: ΔBIC "
             f"{best.criterion_delta:.1f}, explains {100 * best.explained:.0f} % of the "
             f"excess, removes {best.removed_nm:.3g} nm RMS{held}")
         return best
@@ -490,6 +495,263 @@ def _terms(act: Actuator) -> list[str]:
     return terms
 
 
+@dataclass
+class _Rounds:
+    """Where phases 3-6 stand (one mutable record, written by :func:`_run_rounds` only):
+    the model so far, its cost, the entries left to test and those accepted."""
+
+    act: Actuator
+    rss: float
+    """Whitened RSS of ``act``."""
+    nrmse: float
+    """Mean NRMSE of ``act`` [-]."""
+    held_out: dict | None
+    """The leave-one-regime-out cost of the round's start (:mod:`.holdout`)."""
+    pool: list[Candidate]
+    hints: dict
+    """The probes' hints (:func:`locate_phase`), the per-recording ones where the model
+    now stands."""
+    accepted: list[CandidateResult] = field(default_factory=list)
+    rounds: list[list[CandidateResult]] = field(default_factory=list)
+    detection_limits: dict[str, dict] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class _Context:
+    """What every round reads, made before the rounds."""
+
+    problem: Problem
+    base: _Baseline
+    init: Actuator
+    fix: dict
+    config: DiagnoseConfig
+    significance: Significance
+    setup: RefitSetup
+    unpolished: Actuator
+    """Round one sizes from it too (the baseline before its polish, when that differs
+    to the data; else the polished one)."""
+    staged: tuple[str, ...]
+    """The identification steps a re-identification repeats (all but the joint one)."""
+    notes: list[str]
+    timings: dict[str, float]
+
+
+def _held_quantities(init: Actuator, fix: dict | None) -> tuple[dict, list[str]]:
+    """``fix`` with the mass scale held when it holds none (position data fix only the
+    ratios), and the note that says so."""
+    fix = dict(fix or {})
+    if any(n in fix for n in scale_invariant_names(init)):
+        return fix, []
+    fix["Ms"] = float(init.slider.Ms)
+    return fix, [f"Ms held at {fix['Ms']:g} kg (position data fix only ratios of the "
+                 f"masses, dampings and stiffnesses)."]
+
+
+def _baseline_phase(problem: Problem, init: Actuator, identify_steps: Sequence[str],
+                    config: DiagnoseConfig, notes: list[str],
+                    timings: dict[str, float]) -> tuple[_Baseline, Significance, bool]:
+    """Phase 1 and 1b: the baseline, its tolerance, and whether it is adequate (its PI
+    grid refined when that makes it so)."""
+    budget = problem.budget
+    t0 = time.perf_counter()
+    with budget.baseline():  # its own account: never what skips an entry's refit
+        base = _baseline(problem, init, identify_steps, config, notes)
+        significance = _significance(problem, base, config.policy)
+    problem.significance = significance
+    timings["baseline_s"] = time.perf_counter() - t0
+    adequate = significance.adequate(base.rss, problem.chi2_per_recording(base.nrmse))
+    if not adequate and config.refine_hysteresis:
+        t0 = time.perf_counter()
+        with budget.baseline():
+            refined = _refined_hysteresis(problem, base.act, base.rss, significance,
+                                          config, notes)
+        if refined is not None:
+            base, adequate = refined, True
+        timings["hysteresis_shape_s"] = time.perf_counter() - t0
+    problem.say(f"[significance] tolerance: mean (e/σ)² within 1 + "
+                f"{significance.tolerance:.3g} "
+                f"({significance.nm(significance.tolerance_rss):.3g} nm RMS; noise "
+                f"estimate SE {significance.chi2_se:.3g}, numerical "
+                f"{significance.numerical_chi2:.2g}); the baseline is "
+                f"{'within' if adequate else 'beyond'} it")
+    return base, significance, adequate
+
+
+def _run_rounds(ctx: _Context, now: _Rounds, baseline_adequate: bool) -> None:
+    """Phases 3-6, round after round, until no entry is accepted, an accepted one
+    leaves the model within the tolerance, the rounds run out or the work budget
+    stops a later round; ``now`` follows."""
+    problem, config, budget = ctx.problem, ctx.config, ctx.problem.budget
+    say, timings = problem.say, ctx.timings
+    round_one_work = 0.0  # what round one's scores and sizings cost
+    for rnd in range(config.max_rounds):
+        # A later round: its scores and sizings (as round one's) and one refit.
+        later = round_one_work + problem.refit_estimate(now.act, ctx.base.n_base + 1,
+                                                        config.max_steps)
+        if rnd > 0 and not budget.allows(later):
+            note = budget.skip(f"round {rnd + 1}", later)
+            say(f"[budget] round {rnd + 1} {note}")
+            return
+        spent_before_round = budget.spent
+
+        # 3. Score.
+        t0 = time.perf_counter()
+        scores, results, limits, span = _score(
+            problem, now.act, ctx.base.names, now.pool, now.hints,
+            ctx.base.jacobian_at_act if rnd == 0 else None)
+        timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
+        if rnd == 0:
+            now.detection_limits = limits
+            if baseline_adequate:
+                # Nothing the data can tell from the noise: scored for the record (and
+                # the detection limits), but no entry is sized, refitted or named.
+                say("[score] the baseline's residual is within the tolerance of the "
+                    "noise: nothing to explain")
+                now.rounds.append(results)
+                return
+
+        # 4. Size (either sign: a large effect can turn the first-order sign around),
+        # with the baseline held, then free to first order; rank by the largest of the
+        # score and the sizing's drops.
+        t0 = time.perf_counter()
+        seeded = {c.name for c in now.pool if c.seeds(ctx.init)}
+        chosen = chosen_for_sizing(results, seeded, config.sized_per_round,
+                                   now.rss - problem.n_obs if now.accepted else None,
+                                   say, config.policy)
+        free_sizings: dict[str, FreeSizing] = {}
+        sized = size_entries(problem, chosen, now.pool, scores, now.act, ctx.unpolished,
+                             now.rss, ctx.base.names, seeded, round_one=rnd == 0,
+                             max_steps=config.size_steps, policy=config.policy,
+                             baseline_span=span, free_sizings=free_sizings)
+        ranked = sorted([r for r in results if r.name in sized],
+                        key=lambda r: -rank_value(r))
+        if rnd == 0:
+            round_one_work = budget.spent - spent_before_round
+        timings[f"size_round{rnd + 1}_s"] = time.perf_counter() - t0
+
+        # 5. Refit, from the round's optimum.
+        t0 = time.perf_counter()
+        reserve = (ctx.setup.learned_reserve(now.act)
+                   if config.fallback and not now.accepted else 0.0)
+        at = RoundStart(now.act, now.rss, now.nrmse, max(now.rss - problem.n_obs, 1e-9),
+                        reserve, now.held_out)
+        again = (Reidentification(ctx.base.rss_identified, ctx.init, ctx.fix, ctx.staged)
+                 if rnd == 0 else None)
+        _refit_round(RefitRound(ctx.setup, at, ranked, now.pool, sized, free_sizings,
+                                seeded, config.top, first_budgeted=rnd > 0,
+                                reidentification=again, timings=timings),
+                     config.refit_passes)
+        timings[f"refit_round{rnd + 1}_s"] = time.perf_counter() - t0
+        refitted = sorted([r for r in results if r.refitted],
+                          key=lambda r: r.criterion_delta)
+        now.rounds.append(results)
+        if not refitted:
+            return
+
+        # 6. Accept, or stop.
+        best = _accept(refitted, config.policy, ctx.significance, say)
+        if best is None:
+            return
+        now.accepted.append(best)
+        now.act, now.rss = best.actuator, best.rss_after
+        now.held_out = best.held_out or None
+        now.pool = [c for c in now.pool if c.name != best.name]
+        now.nrmse = best.nrmse_after
+        if best.adequate or _after_acceptance(ctx, now, rnd):
+            return
+
+
+def _after_acceptance(ctx: _Context, now: _Rounds, rnd: int) -> bool:
+    """After round ``rnd``'s acceptance: the accepted entries' forms refined within
+    their classes, then the loop's shape (phase 1b on the augmented model); whether
+    either left the model within the tolerance (the rounds then stop)."""
+    problem, config, significance = ctx.problem, ctx.config, ctx.significance
+    # The accepted entries' forms within their classes (a tanh slew limit's corner
+    # freed, ...): a residue of the fitted form is not another effect's.
+    if config.refine_forms:
+        t0 = time.perf_counter()
+        # The hints where the model now stands (a second mode's residual peak shows
+        # once the first is fitted).
+        hints_now = locate_phase(problem, problem.evaluate(now.act)[2], config)[2]
+        refined_act, now.rss = refine_forms(problem, now.act, now.rss, now.accepted,
+                                            hints_now, significance=significance,
+                                            policy=config.policy,
+                                            max_steps=config.max_steps, notes=ctx.notes)
+        # The next round's starts per recording from the residual where the model
+        # now stands (a periodic error's fringe phases show once another effect's
+        # misfit is gone); the shared peaks stay the baseline's.
+        now.hints = now.hints | {k: hints_now[k] for k in ("outputs_m", "residuals_m")}
+        ctx.timings[f"refine_round{rnd + 1}_s"] = time.perf_counter() - t0
+        if refined_act is not now.act:
+            now.act = refined_act
+            nrmse = problem.evaluate(now.act)[1]
+            now.nrmse = float(nrmse.mean())
+            if significance.adequate(now.rss, problem.chi2_per_recording(nrmse)):
+                return True
+    # The loop's shape after the entries: an effect hidden under a hysteresis on
+    # another grid than the baseline's leaves, once named, the grid's residue,
+    # which no entry is for (phase 1b could not tell it while the effect was
+    # there). Kept only when the refined model is within the tolerance.
+    refined = _refined_after(problem, now.act, now.rss, significance, config, ctx.notes,
+                             [r.name for r in now.accepted])
+    if refined is None:
+        return False
+    now.act, now.rss, now.nrmse = refined.act, refined.rss, float(refined.nrmse.mean())
+    return True
+
+
+@dataclass(frozen=True)
+class _Final:
+    """Phase 7's outcome: the final model and what is said of it."""
+
+    act: Actuator
+    rss: float
+    nrmse: np.ndarray
+    q: np.ndarray
+    analyses: list
+    unexplained: dict | None
+    verdict: Verdict
+    left: dict | None
+    numerical: np.ndarray
+
+
+def _final_phase(ctx: _Context, now: _Rounds, chi2_0: float) -> _Final:
+    """Phase 7: the learned correction when a structured residual is left (the residual
+    is above the noise and the accepted entries, if any, removed less than the policy's
+    share of the baseline's excess), the verdict, what is left, and the simulator's own
+    error at the final model (``chi2_0``: the baseline's mean (e/σ)²)."""
+    problem, config, significance = ctx.problem, ctx.config, ctx.significance
+    n_obs, act = problem.n_obs, now.act
+    rss, nrmse, q = problem.evaluate(act)
+    excess0 = max(chi2_0 * n_obs - n_obs, 1e-9)
+    share_left = (rss - n_obs) / excess0
+    within = significance.adequate(rss, problem.chi2_per_recording(nrmse))
+    structured = not within and (not now.accepted
+                                 or share_left > 1 - config.policy.explained_min)
+    unexplained = None
+    if structured and config.fallback:
+        t0 = time.perf_counter()
+        unexplained, corrected = _learned_correction(problem, act, ctx.base.names, rss, q,
+                                                     config.max_steps, config.policy)
+        if corrected is not None:
+            act = corrected
+            rss, nrmse, q = problem.evaluate(act)
+        ctx.timings["fallback_s"] = time.perf_counter() - t0
+    data, sigmas = problem.data, problem.sigmas
+    analyses = [analyse_recording(r, q[i], sigmas[i]) for i, r in enumerate(data.recordings)]
+    chi2_rec = problem.chi2_per_recording(nrmse)
+    within = significance.adequate(rss, chi2_rec)  # again: the correction moved it
+    left = (None if within or not now.accepted
+            else _left(significance, rss, chi2_rec, analyses))
+    # The simulator's own error at the final model (step doubling), next to the noise.
+    numerical = numerical_error(act, data, dataset_plan(act, data))
+    problem.say(f"numerical floor: the simulator's error at the final model is at most "
+                f"{numerical.max() * 1e9:.3g} nm RMS per recording (noise: "
+                f"{sigmas.min() * 1e9:.3g}-{sigmas.max() * 1e9:.3g} nm)")
+    return _Final(act, rss, nrmse, q, analyses, unexplained,
+                  _verdict(structured, now.accepted, within), left, numerical)
+
+
 def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
              identify_steps: Sequence[str] = STEPS, candidates: Sequence[str] | None = None,
              config: DiagnoseConfig | None = None,
@@ -509,49 +771,21 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
     """
     require_float64("diagnose")
     config = (config or DEFAULT_CONFIG).replace(**changes)
-    policy, max_steps, max_rounds = config.policy, config.max_steps, config.max_rounds
-    top, fallback, work_budget = config.top, config.fallback, config.work_budget
-    size_at_most = config.sized_per_round
     say = echo or (lambda s: None)
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
-    budget = Budget(work_budget)
+    budget = Budget(config.work_budget)
     data = Dataset.from_recordings(recordings)
     check_sample_rates(data.recordings, init)  # before anything, --skip-identify too
-    fix = dict(fix or {})
-    notes: list[str] = []
-    if not any(n in fix for n in scale_invariant_names(init)):
-        fix["Ms"] = float(init.slider.Ms)
-        notes.append(f"Ms held at {fix['Ms']:g} kg (position data fix only ratios of the "
-                     f"masses, dampings and stiffnesses).")
+    fix, notes = _held_quantities(init, fix)
     problem = Problem.whitened(data, fix, say, budget,
                                gauss_newton_trial=config.gauss_newton_trial)
-    n_obs, sigmas = problem.n_obs, problem.sigmas
-    say(f"[budget] {_work_estimate(problem, init, work_budget)}")
+    say(f"[budget] {_work_estimate(problem, init, config.work_budget)}")
 
     # 1. Baseline.
-    t0 = time.perf_counter()
-    with budget.baseline():  # its own account: never what skips an entry's refit
-        base = _baseline(problem, init, identify_steps, config, notes)
-        significance = _significance(problem, base, policy)
-    problem.significance = significance
-    timings["baseline_s"] = time.perf_counter() - t0
-    baseline_adequate = significance.adequate(
-        base.rss, problem.chi2_per_recording(base.nrmse))
-    if not baseline_adequate and config.refine_hysteresis:
-        t0 = time.perf_counter()
-        with budget.baseline():
-            refined = _refined_hysteresis(problem, base.act, base.rss, significance,
-                                          config, notes)
-        if refined is not None:
-            base, baseline_adequate = refined, True
-        timings["hysteresis_shape_s"] = time.perf_counter() - t0
-    chi2_0 = base.rss / n_obs
-    say(f"[significance] tolerance: mean (e/σ)² within 1 + {significance.tolerance:.3g} "
-        f"({significance.nm(significance.tolerance_rss):.3g} nm RMS; noise estimate "
-        f"SE {significance.chi2_se:.3g}, numerical {significance.numerical_chi2:.2g}); "
-        f"the baseline is {'within' if baseline_adequate else 'beyond'} it")
-
+    base, significance, adequate = _baseline_phase(problem, init, identify_steps, config,
+                                                   notes, timings)
+    chi2_0 = base.rss / problem.n_obs
     # 2. Locate.
     analyses0, mismatch, hints = locate_phase(problem, base.q, config)
     say(f"[baseline] NRMSE {100 * base.nrmse.mean():.4f} %, chi2/sample {chi2_0:.3f}, "
@@ -559,165 +793,31 @@ def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
         f"{', '.join(f'{f:.0f} Hz' for f in hints['peaks_Hz']) or 'none'}")
     say(f"[budget] {budget.progress()}")
 
-    # Identification steps a re-identification with an entry attached repeats (the
-    # refit that follows is the joint step).
-    staged = [st for st in identify_steps if st != "joint"]
+    # 3-6. Score, size, refit, accept, round after round.
     pool, not_testable = _candidate_pool(candidates, data.recordings)
     regimes = tuple(a.regime for a in analyses0)
-    setup = RefitSetup.from_config(problem, base.names, base.n_base, config, regimes)
-    # The leave-one-regime-out cost of each round's start (:mod:`.holdout`).
+    ctx = _Context(problem, base, init, fix, config, significance,
+                   RefitSetup.from_config(problem, base.names, base.n_base, config, regimes),
+                   (base.unpolished if size_before_polish(base.rss_identified, base.rss,
+                                                          significance) else base.act),
+                   tuple(st for st in identify_steps if st != "joint"), notes, timings)
     held_out = (held_out_cost(base.residual, base.jacobian, regimes)
                 if base.jacobian is not None and base.residual is not None else None)
-
-    # Round one sizes on the baseline before its polish too only when the two differ to
-    # the data; else the polished one is passed, and each entry is sized once.
-    unpolished = (base.unpolished
-                  if size_before_polish(base.rss_identified, base.rss, significance)
-                  else base.act)
-    accepted: list[CandidateResult] = []
-    rounds: list[list[CandidateResult]] = []
-    detection_limits: dict[str, dict] = {}
-    act, rss, nrmse_now = base.act, base.rss, float(base.nrmse.mean())
-    round_one_work = 0.0  # what round one's scores and sizings cost
-    for rnd in range(max_rounds):
-        # A later round: its scores and sizings (as round one's) and one refit.
-        later = round_one_work + problem.refit_estimate(act, base.n_base + 1, max_steps)
-        if rnd > 0 and not budget.allows(later):
-            note = budget.skip(f"round {rnd + 1}", later)
-            say(f"[budget] round {rnd + 1} {note}")
-            break
-        spent_before_round = budget.spent
-
-        # 3. Score.
-        t0 = time.perf_counter()
-        scores, results, limits, span = _score(
-            problem, act, base.names, pool, hints,
-            base.jacobian_at_act if rnd == 0 else None)
-        timings[f"score_round{rnd + 1}_s"] = time.perf_counter() - t0
-        if rnd == 0:
-            detection_limits = limits
-            if baseline_adequate:
-                # Nothing the data can tell from the noise: scored for the record (and
-                # the detection limits), but no entry is sized, refitted or named.
-                say("[score] the baseline's residual is within the tolerance of the "
-                    "noise: nothing to explain")
-                rounds.append(results)
-                break
-
-        # 4. Size (either sign: a large effect can turn the first-order sign around),
-        # with the baseline held, then free to first order; rank by the largest of the
-        # score and the sizing's drops.
-        t0 = time.perf_counter()
-        seeded = {c.name for c in pool if c.seeds(init)}
-        chosen = chosen_for_sizing(results, seeded, size_at_most,
-                                   rss - n_obs if accepted else None, say, policy)
-        free_sizings: dict[str, FreeSizing] = {}
-        sized = size_entries(problem, chosen, pool, scores, act, unpolished, rss,
-                             base.names, seeded, round_one=rnd == 0,
-                             max_steps=config.size_steps, policy=policy,
-                             baseline_span=span, free_sizings=free_sizings)
-        ranked = sorted([r for r in results if r.name in sized],
-                        key=lambda r: -rank_value(r))
-        if rnd == 0:
-            round_one_work = budget.spent - spent_before_round
-        timings[f"size_round{rnd + 1}_s"] = time.perf_counter() - t0
-
-        # 5. Refit, from the round's optimum.
-        t0 = time.perf_counter()
-        reserve = setup.learned_reserve(act) if fallback and not accepted else 0.0
-        at = RoundStart(act, rss, nrmse_now, max(rss - n_obs, 1e-9), reserve, held_out)
-        again = (Reidentification(base.rss_identified, init, fix, tuple(staged))
-                 if rnd == 0 else None)
-        _refit_round(RefitRound(setup, at, ranked, pool, sized, free_sizings, seeded,
-                                top, first_budgeted=rnd > 0, reidentification=again,
-                                timings=timings), config.refit_passes)
-        timings[f"refit_round{rnd + 1}_s"] = time.perf_counter() - t0
-        refitted = sorted([r for r in results if r.refitted],
-                          key=lambda r: r.criterion_delta)
-        rounds.append(results)
-        if not refitted:
-            break
-
-        # 6. Accept, or stop.
-        best = _accept(refitted, policy, significance, say)
-        if best is None:
-            break
-        accepted.append(best)
-        act, rss = best.actuator, best.rss_after
-        held_out = best.held_out or None
-        pool = [c for c in pool if c.name != best.name]
-        nrmse_now = best.nrmse_after
-        if best.adequate:
-            break
-        # The accepted entries' forms within their classes (a tanh slew limit's corner
-        # freed, ...): a residue of the fitted form is not another effect's.
-        if config.refine_forms:
-            t0 = time.perf_counter()
-            # The hints where the model now stands (a second mode's residual peak shows
-            # once the first is fitted).
-            hints_now = locate_phase(problem, problem.evaluate(act)[2], config)[2]
-            refined_act, rss = refine_forms(problem, act, rss, accepted, hints_now,
-                                            significance=significance, policy=policy,
-                                            max_steps=max_steps, notes=notes)
-            # The next round's starts per recording from the residual where the model
-            # now stands (a periodic error's fringe phases show once another effect's
-            # misfit is gone); the shared peaks stay the baseline's.
-            hints = hints | {k: hints_now[k] for k in ("outputs_m", "residuals_m")}
-            timings[f"refine_round{rnd + 1}_s"] = time.perf_counter() - t0
-            if refined_act is not act:
-                act = refined_act
-                nrmse = problem.evaluate(act)[1]
-                nrmse_now = float(nrmse.mean())
-                if significance.adequate(rss, problem.chi2_per_recording(nrmse)):
-                    break
-        # The loop's shape after the entries: an effect hidden under a hysteresis on
-        # another grid than the baseline's leaves, once named, the grid's residue,
-        # which no entry is for (phase 1b could not tell it while the effect was
-        # there). Kept only when the refined model is within the tolerance.
-        refined = _refined_after(problem, act, rss, significance, config, notes,
-                                 [r.name for r in accepted])
-        if refined is not None:
-            act, rss, nrmse_now = refined.act, refined.rss, float(refined.nrmse.mean())
-            break
-
+    now = _Rounds(base.act, base.rss, float(base.nrmse.mean()), held_out, pool, hints)
+    _run_rounds(ctx, now, adequate)
     if budget.skipped:
         notes.append(f"Work budget {budget.total:.3g} {UNIT}: skipped "
                      f"{', '.join(budget.skipped)} (their notes say so); "
                      f"--work-budget 0 lifts the limit, --work-budget 2 doubles it.")
-    rss_final, nrmse_f, qf = problem.evaluate(act)
 
-    # 7. Structure the catalogue left: the residual is above the noise and the
-    # accepted entries (if any) removed less than the policy's share of the baseline's
-    # excess; the learned correction then says what it depends on.
-    excess0 = max(chi2_0 * n_obs - n_obs, 1e-9)
-    share_left = (rss_final - n_obs) / excess0
-    within = significance.adequate(rss_final, problem.chi2_per_recording(nrmse_f))
-    structured = not within and (not accepted or share_left > 1 - policy.explained_min)
-    unexplained = None
-    if structured and fallback:
-        t0 = time.perf_counter()
-        unexplained, corrected = _learned_correction(problem, act, base.names, rss_final,
-                                                     qf, max_steps, policy)
-        if corrected is not None:
-            act = corrected
-            rss_final, nrmse_f, qf = problem.evaluate(act)
-        timings["fallback_s"] = time.perf_counter() - t0
-    analyses_f = [analyse_recording(r, qf[i], sigmas[i]) for i, r in enumerate(data.recordings)]
-    chi2_rec = problem.chi2_per_recording(nrmse_f)
-    within = significance.adequate(rss_final, chi2_rec)  # again: the correction moved it
-    verdict = _verdict(structured, accepted, within)
-    left = (None if within or not accepted
-            else _left(significance, rss_final, chi2_rec, analyses_f))
-    # The simulator's own error at the final model (step doubling), next to the noise.
-    numerical = numerical_error(act, data, dataset_plan(act, data))
-    say(f"numerical floor: the simulator's error at the final model is at most "
-        f"{numerical.max() * 1e9:.3g} nm RMS per recording (noise: "
-        f"{sigmas.min() * 1e9:.3g}-{sigmas.max() * 1e9:.3g} nm)")
+    # 7. Learned correction, verdict.
+    final = _final_phase(ctx, now, chi2_0)
     timings["total_s"] = time.perf_counter() - t_all
     say(f"[budget] {budget.progress()}")
-    return Diagnosis(data, sigmas, base.act, act, base.nrmse, nrmse_f, chi2_0,
-                     rss_final / n_obs, analyses0, analyses_f, mismatch, accepted, rounds,
-                     not_testable, unexplained, verdict, base.q, qf, _terms(act), timings,
-                     notes, [float(p) for p in hints["peaks_Hz"]], numerical,
-                     budget.record(), policy, significance.record(), detection_limits,
-                     config, left)
+    return Diagnosis(data, problem.sigmas, base.act, final.act, base.nrmse, final.nrmse,
+                     chi2_0, final.rss / problem.n_obs, analyses0, final.analyses,
+                     mismatch, now.accepted, now.rounds, not_testable, final.unexplained,
+                     final.verdict, base.q, final.q, _terms(final.act), timings, notes,
+                     [float(p) for p in hints["peaks_Hz"]], final.numerical,
+                     budget.record(), config.policy, significance.record(),
+                     now.detection_limits, config, final.left)
