@@ -74,6 +74,21 @@ def _summary(content: dict, hidden: tuple[str, ...]) -> dict:
             "chi2_final": content["final"]["chi2_per_sample"]}
 
 
+def arm_recordings(spec: rs.SetSpec, recs, plan, arm: str) -> list:
+    """The recordings an arm adds to the set's ``recs``: the ``plan``'s drives
+    (``designed``) or the protocol again for as long (``default``), recorded at the
+    set's truth with its hidden effect by the independent generator, the arm's seed."""
+    if arm == "designed":
+        drives = [r.drive for r in plan.recordings]
+    else:
+        old_time = sum(r.n * r.dt for r in recs)
+        drives = [d for d in paper_protocol()
+                  for _ in range(round(plan.total_time_s / old_time))]
+    return [dataclasses.replace(r, name=f"{arm}_{k}_{r.name}") for k, r in enumerate(
+        simulate_set(rs.hidden_actuator(spec), drives, noise_m=spec.noise_m,
+                     seed=spec.recording_seed + ARM_SEEDS[arm]))]
+
+
 def run_set(spec: rs.SetSpec, work: Path) -> dict:
     work.mkdir(parents=True, exist_ok=True)
     recs = rs.make_recordings(spec)
@@ -94,15 +109,9 @@ def run_set(spec: rs.SetSpec, work: Path) -> dict:
     if not (work / "plan" / "plan.json").is_file():
         (work / "plan").mkdir(exist_ok=True)
         write_plan(plan, work / "plan", figures=False)
-    truth = rs.hidden_actuator(spec)
     arms = {}
-    old_time = sum(r.n * r.dt for r in recs)
-    for arm, drives in (("designed", [r.drive for r in plan.recordings]),
-                        ("default", [d for d in paper_protocol()
-                                     for _ in range(round(plan.total_time_s / old_time))])):
-        new = [dataclasses.replace(r, name=f"{arm}_{k}_{r.name}") for k, r in enumerate(
-            simulate_set(truth, drives, noise_m=spec.noise_m,
-                         seed=spec.recording_seed + ARM_SEEDS[arm]))]
+    for arm in ("designed", "default"):
+        new = arm_recordings(spec, recs, plan, arm)
         t0 = time.perf_counter()
         content = _diagnosed(recs + new, work / f"diag_{arm}")
         arms[arm] = {**_summary(content, spec.hidden), "wall_s": time.perf_counter() - t0,

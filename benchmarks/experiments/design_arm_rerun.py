@@ -16,7 +16,6 @@ change. It is written to ``--out``.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -29,11 +28,10 @@ jax.config.update("jax_enable_x64", True)
 import stickslip_jax as ss  # noqa: E402
 from stickslip_jax.diagnose.config import DiagnoseConfig  # noqa: E402
 from stickslip_jax.diagnose.report import write_diagnosis  # noqa: E402
-from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing import random_sets as rs  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from bench_design_loop import ARM_SEEDS, FIX  # noqa: E402
+from bench_design_loop import ARM_SEEDS, FIX, arm_recordings  # noqa: E402
 
 
 def main() -> None:
@@ -56,12 +54,7 @@ def main() -> None:
         sys.exit(f"{diag0}/diagnosis.json: run bench_design_loop.py on {name} first")
     recs = rs.make_recordings(spec)
     plan = ss.design_experiment(recs, diag0, fix=FIX, echo=lambda s: None)
-    old_time = sum(r.n * r.dt for r in recs)
-    drives = ([r.drive for r in plan.recordings] if args.arm == "designed" else
-              [d for d in paper_protocol() for _ in range(round(plan.total_time_s / old_time))])
-    new = [dataclasses.replace(r, name=f"{args.arm}_{k}_{r.name}") for k, r in enumerate(
-        simulate_set(rs.hidden_actuator(spec), drives, noise_m=spec.noise_m,
-                     seed=spec.recording_seed + ARM_SEEDS[args.arm]))]
+    new = arm_recordings(spec, recs, plan, args.arm)
     config = DiagnoseConfig()
     if args.with_pass:
         config = config.with_passes(*args.with_pass.split(","))
