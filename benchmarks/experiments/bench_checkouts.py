@@ -10,7 +10,8 @@ diagnosing the reduced set of ``tests/test_diagnose.py`` (8 recordings; the base
 polished from the truth, one round, two refits, 20 steps) with one hidden ``effect``
 (``uncatalogued`` and ``none`` with the fallback, as their tests run them; the others
 without). Runs alternate which checkout goes first, after one unrecorded warm-up run of
-each (the traced-program store and the compilation cache filled). Reported per effect:
+each (the traced-program store and the compilation cache filled); with ``--cold`` no
+cache at all and no warm-up (every run compiles everything). Reported per effect:
 the median wall of each checkout and their ratio, and how far apart every number of
 the two checkouts' ``diagnosis.json`` content is (timings left out): the largest
 relative difference and where, and whether any decision (a name, a status, a verdict)
@@ -56,8 +57,10 @@ json.dump({"wall_s": wall, "diagnosis": content, "package": ss.__file__},
 """
 
 
-def run_once(checkout: Path, effect: str, out: Path) -> dict:
+def run_once(checkout: Path, effect: str, out: Path, cold: bool = False) -> dict:
     env = dict(os.environ, PYTHONPATH=str(checkout.resolve()), MPLBACKEND="Agg")
+    if cold:  # no compilation cache, no traced-program store: every program compiled
+        env["STICKSLIP_CACHE_DIR"] = "off"
     # Run from the output's folder: ``python -c`` puts its working directory first on
     # sys.path, and a checkout there would win over PYTHONPATH.
     subprocess.run([sys.executable, "-c", CHILD, effect, str(out), str(ROOT / "tests")],
@@ -102,6 +105,9 @@ def main() -> None:
     ap.add_argument("after", type=Path, help="checkout B")
     ap.add_argument("--effects", default="uncatalogued,structural_mode")
     ap.add_argument("--pairs", type=int, default=2, help="recorded runs of each checkout")
+    ap.add_argument("--cold", action="store_true",
+                    help="every run compiles everything (STICKSLIP_CACHE_DIR=off), no "
+                         "warm-up: what a first run and the tests pay")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     checkouts = {"before": args.before, "after": args.after}
@@ -110,10 +116,11 @@ def main() -> None:
         for effect in args.effects.split(","):
             walls = {k: [] for k in checkouts}
             last = {}
-            for i in range(args.pairs + 1):  # the first pair warms up
-                order = list(checkouts) if i % 2 == 0 else list(reversed(checkouts))
+            first = 1 if args.cold else 0  # warm: the first pair fills the caches
+            for i in range(first, args.pairs + 1):
+                order = list(checkouts) if i % 2 == first % 2 else list(reversed(checkouts))
                 for k in order:
-                    got = run_once(checkouts[k], effect, Path(tmp) / f"{k}.json")
+                    got = run_once(checkouts[k], effect, Path(tmp) / f"{k}.json", args.cold)
                     last[k] = got["diagnosis"]
                     if i:
                         walls[k].append(got["wall_s"])
@@ -129,7 +136,7 @@ def main() -> None:
             print(f"{effect}: median {med['before']:.1f} -> {med['after']:.1f} s "
                   f"({med['after'] / med['before']:.2f}x); largest relative difference "
                   f"{worst:.2g} at {where or '-'}; other differences: {other or 'none'}")
-    write_record(args.json, before=str(args.before), after=str(args.after),
+    write_record(args.json, before=str(args.before), after=str(args.after), cold=args.cold,
                  before_commit=commit_of(args.before), after_commit=commit_of(args.after),
                  rows=rows)
 

@@ -4,6 +4,7 @@ every simulation it runs is charged to the work budget (:mod:`.budget`)."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 
@@ -28,12 +29,12 @@ from ..identify.solve import (
     solve_least_squares,
 )
 from ..identify.step_names import dynamics_names, friction_names, without_absent_directions
-from ..identify.steps import JOINT_GN_TOL
+from ..identify.steps import JOINT_GN_TOL, REPLAN_FACTOR
 from ..model.actuator import Actuator
 from ..noise import noise_sigma
 from ..program_store import stored_jit
 from ..significance import Significance
-from ..stepping import StepPlan
+from ..stepping import MAX_SUBSTEPS_PER_CALL, StepPlan
 from .budget import UNIT, Budget, evaluation_work, fit_work, plan_factor, solve_work
 
 
@@ -252,6 +253,9 @@ class Problem:
         self.samples = int(data.mask.size)  # the padded grid the simulator steps
         self.counts = np.asarray(data.mask.sum(axis=1), dtype=float)
         self._programs: dict = {}
+        self._plans: list[StepPlan] = []
+        """The stepping plans this problem's fits have run at, coarsest first
+        (:meth:`plan_for`)."""
         self.significance: Significance | None = None
         """The tolerance of practical significance (:mod:`~stickslip_jax.significance`),
         set once the baseline's numerical error is known."""
@@ -265,11 +269,33 @@ class Problem:
         sigmas = np.array([noise_sigma(r) for r in data.recordings])
         return cls(data, sigmas, fix, echo, budget, **options)
 
+    def plan_for(self, act: Actuator, *, keep: bool = True) -> StepPlan:
+        """The stepping plan a simulation of ``act`` on these data runs at: the plan it
+        needs (:func:`~stickslip_jax.identify.residuals.dataset_plan`), or the coarsest
+        one this problem already ran at by the same rules with at least as many
+        sub-steps and fewer than :data:`~stickslip_jax.identify.steps.REPLAN_FACTOR`
+        times as many, as an identification step keeps its plan until the fit needs
+        half of it or less. The sub-step count is static in the compiled programs, and a
+        fit that moves the fastest mode across a count's boundary (the reduced sensor
+        delay set: 7 and 8 sub-steps in turn) compiled every structure's programs twice;
+        a finer plan is never less accurate. ``keep``: remember a new plan (False for an
+        estimate of a fit that may not run)."""
+        need = dataset_plan(act, self.data)
+        for used in self._plans:
+            if (need.substeps <= used.substeps < REPLAN_FACTOR * need.substeps
+                    and used.substeps * self.samples <= MAX_SUBSTEPS_PER_CALL
+                    and dataclasses.replace(used, substeps=need.substeps) == need):
+                return used
+        if keep:
+            self._plans = sorted([*self._plans, need], key=lambda p: p.substeps)
+        return need
+
     def plan_factor(self, act: Actuator, plan: StepPlan | None = None) -> float:
-        """Cost per sample of simulating ``act`` at ``plan`` (default: the plan it needs
-        on these data; pass a residual's own, ``res.inner.plan``, when there is one),
-        relative to the work unit's (:func:`~.budget.plan_factor`) [-]."""
-        plan = dataset_plan(act, self.data) if plan is None else plan
+        """Cost per sample of simulating ``act`` at ``plan`` (default: the plan it runs
+        at on these data, :meth:`plan_for`; pass a residual's own, ``res.inner.plan``,
+        when there is one), relative to the work unit's (:func:`~.budget.plan_factor`)
+        [-]."""
+        plan = self.plan_for(act, keep=False) if plan is None else plan
         return plan_factor(plan, act.input_stage)
 
     def identification_work(self, ident, start: Actuator) -> float:
@@ -316,8 +342,11 @@ class Problem:
         return programs
 
     def residuals(self, pmap: ParameterMap) -> WhitenedResiduals:
-        return WhitenedResiduals(TraceResiduals.make(pmap, self.data, in_metres=True),
-                                 jnp.asarray(1.0 / self.sigmas))
+        """The whitened residual around ``pmap``, at the plan of its start
+        (:meth:`plan_for`)."""
+        inner = TraceResiduals.make(pmap, self.data, in_metres=True,
+                                    stepping=self.plan_for(pmap.start))
+        return WhitenedResiduals(inner, jnp.asarray(1.0 / self.sigmas))
 
     def evaluate(self, act: Actuator):
         """(whitened RSS, NRMSE per recording, simulated outputs) of ``act``."""

@@ -105,7 +105,7 @@ import numpy as np
 
 from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap, scale_invariant_names
-from ..identify.residuals import dataset_plan, numerical_error
+from ..identify.residuals import numerical_error
 from ..identify.sampling import check_sample_rates
 from ..identify.solve import gauss_newton_drop
 from ..identify.steps import STEPS, identify
@@ -369,7 +369,7 @@ def _significance(problem: Problem, base: _Baseline, policy: Policy) -> Signific
     """The tolerance of practical significance (:mod:`~stickslip_jax.significance`): the noise
     estimates' standard errors and the simulator's error at the baseline."""
     data = problem.data
-    plan = dataset_plan(base.act, data)
+    plan = problem.plan_for(base.act)  # the plan base.q was simulated at
     numerical = numerical_error(base.act, data, plan, base.q)
     problem.budget.charge(2 * problem.evaluation_work(base.act, 0))  # the doubled plan
     rel_se = np.array([noise_sigma_relative_se(r) for r in data.recordings])
@@ -744,7 +744,7 @@ def _final_phase(ctx: _Context, now: _Rounds, chi2_0: float) -> _Final:
     left = (None if within or not now.accepted
             else _left(significance, rss, chi2_rec, analyses))
     # The simulator's own error at the final model (step doubling), next to the noise.
-    numerical = numerical_error(act, data, dataset_plan(act, data))
+    numerical = numerical_error(act, data, problem.plan_for(act))
     problem.say(f"numerical floor: the simulator's error at the final model is at most "
                 f"{numerical.max() * 1e9:.3g} nm RMS per recording (noise: "
                 f"{sigmas.min() * 1e9:.3g}-{sigmas.max() * 1e9:.3g} nm)")
