@@ -12,7 +12,8 @@ from the actuator's time scales, so another actuator's data compile their own (i
 read from the cache is the one a compile would make: results do not change, only the time.
 JAX compresses each entry with ``zstandard`` when it can import it (a dependency), zlib
 otherwise: a cold reduced diagnosis writing a fresh cache took 72.3 and 77.6 s with it,
-77.6 and 82.0 s with zlib (2026-12-07, alternating, the same result).
+77.6 and 82.0 s with zlib (2026-12-07, alternating, the same result). The compressor is
+part of an entry's key, so a cache written with zlib is not read, only aged out.
 
 Several processes share one cache (the two pytest workers; commands run side by side).
 JAX locks the cache's reads and writes, and evicts its least recently used entries,

@@ -53,3 +53,24 @@ def test_compiled_programs_are_kept_locked_and_read_back(tmp_path):
                    capture_output=True, text=True, timeout=300, check=True)
     assert sorted(p.name for p in cache.iterdir() if not p.name.endswith("-atime")) == \
         sorted(n for n in entries if not n.endswith("-atime"))
+
+
+def test_a_cache_written_without_zstandard_is_left_alone(tmp_path):
+    """A cache from before ``zstandard`` was installed (zlib entries): the compressor is
+    part of an entry's key, so the program is compiled again into a zstandard entry
+    beside the old one, with no warning about the old one."""
+    cache = tmp_path / "cache"
+    env = {k: v for k, v in os.environ.items() if k != CACHE_ENV}
+    env["PYTHONWARNINGS"] = "always"
+    zlib_run = "import sys; sys.modules['zstandard'] = None\n" + _COMPILE
+    subprocess.run([sys.executable, "-c", zlib_run, str(cache)], env=env,
+                   capture_output=True, text=True, timeout=300, check=True)
+    old = {p.name: p.read_bytes() for p in cache.iterdir() if p.name.endswith("-cache")}
+    assert old and all(b[:2] == b"\x78\x9c" for b in old.values())  # zlib's header
+    again = subprocess.run([sys.executable, "-c", _COMPILE, str(cache)], env=env,
+                           capture_output=True, text=True, timeout=300, check=True)
+    assert "persistent compilation cache" not in again.stderr, again.stderr
+    now = {p.name: p.read_bytes() for p in cache.iterdir() if p.name.endswith("-cache")}
+    new = {n: b for n, b in now.items() if n not in old}
+    assert len(new) == len(old) and all(now[n] == b for n, b in old.items())
+    assert all(b[:4] == b"\x28\xb5\x2f\xfd" for b in new.values())  # a zstandard frame
