@@ -4,7 +4,6 @@ every simulation it runs is charged to the work budget (:mod:`.budget`)."""
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 
@@ -29,7 +28,7 @@ from ..identify.solve import (
     solve_least_squares,
 )
 from ..identify.step_names import dynamics_names, friction_names, without_absent_directions
-from ..identify.steps import JOINT_GN_TOL, REPLAN_FACTOR
+from ..identify.steps import JOINT_GN_TOL, REPLAN_FACTOR, kept_finer
 from ..model.actuator import Actuator
 from ..noise import noise_sigma
 from ..program_store import stored_jit
@@ -282,9 +281,9 @@ class Problem:
         estimate of a fit that may not run)."""
         need = dataset_plan(act, self.data)
         for used in self._plans:
-            if (need.substeps <= used.substeps < REPLAN_FACTOR * need.substeps
-                    and used.substeps * self.samples <= MAX_SUBSTEPS_PER_CALL
-                    and dataclasses.replace(used, substeps=need.substeps) == need):
+            if (kept_finer(need, used) is used
+                    and used.substeps < REPLAN_FACTOR * need.substeps
+                    and used.substeps * self.samples <= MAX_SUBSTEPS_PER_CALL):
                 return used
         if keep:
             self._plans = sorted([*self._plans, need], key=lambda p: p.substeps)
