@@ -5,6 +5,8 @@
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.7
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -41,6 +43,7 @@ import numpy as np
 import stickslip_jax as ss
 
 ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+ss.use_compilation_cache()  # programs kept on disk ($STICKSLIP_CACHE_DIR): a rerun skips compiling
 
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 FIXTURES = next(p / "fixtures" for p in (Path.cwd(), *Path.cwd().parents)

@@ -5,6 +5,8 @@
 #     text_representation:
 #       extension: .py
 #       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.7
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -44,6 +46,7 @@ from stickslip_jax.sweep.zba_surface import plot_zba_surface
 from stickslip_jax.synthetic import example_zba, with_drive_dependent_zba
 
 ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+ss.use_compilation_cache()  # programs kept on disk ($STICKSLIP_CACHE_DIR): a rerun skips compiling
 
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 

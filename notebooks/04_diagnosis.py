@@ -57,6 +57,7 @@ from stickslip_jax.diagnose.locate import residual_of
 from stickslip_jax.identify.residuals import periodogram_psd
 
 ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+ss.use_compilation_cache()  # programs kept on disk ($STICKSLIP_CACHE_DIR): a rerun skips compiling
 
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 FIXTURES = next(p / "fixtures" for p in (Path.cwd(), *Path.cwd().parents)

@@ -63,6 +63,7 @@ from stickslip_jax.synthetic import paper_protocol, simulate_set
 from stickslip_jax.testing import random_sets
 
 ss.fast_cpu_loops()  # XLA compiles the simulator's small loops natively (~3x)
+ss.use_compilation_cache()  # programs kept on disk ($STICKSLIP_CACHE_DIR): a rerun skips compiling
 
 QUICK = os.environ.get("STICKSLIP_NOTEBOOK_QUICK", "0") == "1"
 spec = random_sets.split_sets("dev2")[40]

@@ -31,6 +31,20 @@ def test_the_folder_comes_from_the_environment(monkeypatch, tmp_path):
     monkeypatch.setenv(CACHE_ENV, " OFF ")
     assert cache_dir_from_env() is None
     assert use_compilation_cache(None) is False
+    assert use_compilation_cache() is False  # the default asks the environment
+
+
+def test_by_default_the_cache_is_the_environments_folder(tmp_path):
+    """A notebook's ``ss.use_compilation_cache()`` keeps its programs where the command
+    line keeps them: ``$STICKSLIP_CACHE_DIR``."""
+    cache = tmp_path / "cache"
+    env = {**os.environ, CACHE_ENV: str(cache)}
+    script = _COMPILE.replace("use_compilation_cache(Path(sys.argv[1]))",
+                              "use_compilation_cache()")
+    done = subprocess.run([sys.executable, "-c", script], env=env,
+                          capture_output=True, text=True, timeout=300, check=True)
+    assert done.stdout.split()[0] == "True"
+    assert any(p.name.endswith("-cache") for p in cache.iterdir())
 
 
 def test_a_folder_that_cannot_be_made_leaves_the_cache_off(tmp_path):
