@@ -157,39 +157,61 @@ def low_pass(x, tau):
     return jax.lax.scan(step, x[0], x)[1]
 
 
-def model_output(theta, u, terms):
+# Every parameter of every term has its place in one vector, and a term is switched on
+# by data (`on`, 0 or 1 per term): one compiled program serves every combination the
+# selection tries, instead of one per combination.
+SLOTS, i = {}, N_PI + 1
+for name, k in N_TERM.items():
+    SLOTS[name] = slice(i, i + k)
+    i += k
+N_ALL = i
+
+
+def model_output(theta, u, on):
+    """Sensor output [V] for the full parameter vector ``theta`` with the terms whose
+    entry of ``on`` (one per term of N_TERM, in order) is 1; a term at 0 adds exactly 0."""
     o = sign * PrandtlIshlinskii(thresholds, weights.to_physical(theta[:N_PI])).along(u)
     o = o + intercept + scale * theta[N_PI]
-    i = N_PI + 1
     t = dt * jnp.arange(u.shape[0])
-    lag = None
-    for name in terms:
-        p = theta[i : i + N_TERM[name]]
-        i += N_TERM[name]
-        if name == "creep":
-            o = o + sign * gain * p[0] * (low_pass(u, jnp.exp(p[1])) - u)
-        elif name == "rate_dependence":
-            o = o + sign * gain * 0.1 * p[0] * jnp.gradient(u) / dt
-        elif name == "sensor_drift":
-            o = o + scale * 0.01 * p[0] * t
-        elif name == "sensor_lag":
-            lag = jax.nn.sigmoid(p[0])
-    if lag is not None:
-        o = (1 - lag) * o + lag * jnp.concatenate([o[:1], o[:-1]])
-    return o
+    switch = dict(zip(N_TERM, on, strict=True))
+    p = {name: theta[where] for name, where in SLOTS.items()}
+    o = o + switch["creep"] * sign * gain * p["creep"][0] * (
+        low_pass(u, jnp.exp(p["creep"][1])) - u)
+    o = o + switch["rate_dependence"] * sign * gain * 0.1 * p["rate_dependence"][0] \
+        * jnp.gradient(u) / dt
+    o = o + switch["sensor_drift"] * scale * 0.01 * p["sensor_drift"][0] * t
+    lag = switch["sensor_lag"] * jax.nn.sigmoid(p["sensor_lag"][0])
+    return (1 - lag) * o + lag * jnp.concatenate([o[:1], o[:-1]])
+
+
+def training_residuals(theta, on):
+    return (model_output(theta, u_tr, on) - y_tr) / scale
+
+
+residuals_and_jacobian = jax.jit(
+    lambda theta, on: (training_residuals(theta, on),
+                       jax.jacfwd(training_residuals)(theta, on)))
 
 
 def fit_terms(terms):
-    n = N_PI + 1 + sum(N_TERM[t] for t in terms)
+    on = jnp.asarray([float(name in terms) for name in N_TERM])
+    free = np.r_[np.arange(N_PI + 1),
+                 *[np.arange(N_ALL)[SLOTS[name]] for name in N_TERM if name in terms]]
 
-    def residuals(theta):
-        return (model_output(theta, u_tr, terms) - y_tr) / scale
+    def full(theta_free):
+        return jnp.zeros(N_ALL).at[free].set(theta_free)
 
-    out = solve_least_squares(residuals, jnp.zeros(n), max_steps=200, label="+".join(terms))
-    theta = jnp.asarray(out.theta)
-    r = np.asarray(residuals(theta)) * scale
-    bic = r.size * np.log(np.mean(r**2)) + n * np.log(r.size)
-    y_held = np.asarray(model_output(theta, u_te, terms))
+    def jacobian(theta_free):
+        r, jac = residuals_and_jacobian(full(theta_free), on)
+        return np.asarray(r), np.asarray(jac)[:, free]
+
+    out = solve_least_squares(lambda th: training_residuals(full(th), on),
+                              jnp.zeros(free.size), max_steps=200, label="+".join(terms),
+                              jacobian=jacobian)
+    theta = full(jnp.asarray(out.theta))
+    r = np.asarray(training_residuals(theta, on)) * scale
+    bic = r.size * np.log(np.mean(r**2)) + free.size * np.log(r.size)
+    y_held = np.asarray(model_output(theta, u_te, on))
     return {"terms": tuple(terms), "theta": theta, "converged": out.converged, "bic": bic,
             "train": float(np.sqrt(np.mean(r**2)) / scale),
             "held_out": nrmse_offset_refit(y_held, test.sensor_V, HELD), "y_held": y_held}
@@ -231,8 +253,7 @@ for h in history:
           f"{100 * h['held_out']:8.3f}%")
 final = history[-1]
 for name in final["terms"]:
-    i = N_PI + 1 + sum(N_TERM[t] for t in final["terms"][: final["terms"].index(name)])
-    p = np.asarray(final["theta"][i : i + N_TERM[name]])
+    p = np.asarray(final["theta"][SLOTS[name]])
     if name == "creep":
         how = ("the stroke keeps moving after a change" if p[0] > 0
                else "part of the stroke relaxes back after a change")
