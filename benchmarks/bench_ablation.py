@@ -209,6 +209,21 @@ def _without(name: str):
     return config.without(name) if name in config.record()["passes"] else config
 
 
+def unknown_names(fields: list[str], replayable: list[str], moves: tuple[str, ...]) -> str:
+    """Why ``--fields``/``--moves`` name nothing this script can rerun ("" when they
+    all can): a field removed from :class:`Policy`, one not replayed, or a typo would
+    otherwise rerun nothing for it, silently."""
+    bad_fields = [f for f in fields if f not in replayable]
+    bad_moves = [m for m in moves if m not in MOVES]
+    why = []
+    if bad_fields:
+        why.append(f"--fields: no replayable Policy field {', '.join(bad_fields)} "
+                   f"(replayable: {', '.join(replayable)})")
+    if bad_moves:
+        why.append(f"--moves: no move {', '.join(bad_moves)} (moves: {', '.join(MOVES)})")
+    return "\n".join(why)
+
+
 def rerun(rows: list[dict], passes: list[dict], thresholds: list[dict],
           fields: list[str], out: Path | None, part: tuple[int, int],
           split: str = "dev", paired: bool = False,
@@ -324,9 +339,13 @@ def main() -> None:
     print(f"\nnot replayed (need reruns): {', '.join(NOT_REPLAYED)}")
     k, n = (int(x) for x in args.part.split("/"))
     if args.rerun:
-        reruns = rerun(rows, passes, thresholds, [f for f in args.fields.split(",") if f],
-                       args.reruns_json, (k, n), split, args.paired,
-                       moves=tuple(m for m in args.moves.split(",") if m))
+        fields = [f for f in args.fields.split(",") if f]
+        moves = tuple(m for m in args.moves.split(",") if m)
+        refused = unknown_names(fields, [t["field"] for t in thresholds], moves)
+        if refused:
+            sys.exit(refused)
+        reruns = rerun(rows, passes, thresholds, fields, args.reruns_json, (k, n), split,
+                       args.paired, moves=moves)
     elif args.reruns_json and args.reruns_json.exists():  # earlier reruns, reported
         reruns = json.loads(args.reruns_json.read_text())["reruns"]
     else:
