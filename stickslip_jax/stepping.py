@@ -635,7 +635,8 @@ def _located(actuator, drive, solver, field_at, y, y1, k1, k_end, tau0, dtau, h)
     return _branch(jnp.any(crossed), split, (y1, k_end))
 
 
-def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan):
+def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan, *,
+                   checkpoint: bool = True):
     """The scan body over one sample interval: ``((y, memory), (u_a, u_b)) ↦
     ((y, memory), q_b)`` with the voltage linear from ``u_a`` to ``u_b`` [V] over
     ``dt`` [s] and ``q_b`` [m] the output at its end (before the output map).
@@ -646,11 +647,18 @@ def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan):
     ``plan.substeps`` sub-steps each; otherwise they are skipped (a ``cond``: only those
     intervals pay; under ``vmap`` a batch pays a pass where one of its rows needs it,
     :func:`_branch`). All passes run the same integrator, so it is compiled once.
+
+    ``checkpoint``: the body under ``jax.checkpoint``, so that reverse mode through the
+    sample loop keeps one carry per sample and recomputes the interval's inside. A
+    caller that never takes reverse mode through it (the forward-mode programs of
+    :mod:`~.identify.sensitivities`) passes False: the same arithmetic (identify's
+    parameters equal to the bit), without tracing and lowering the remat (cold
+    ``stickslip identify`` on the fixtures 31.7 → 28.0 s, medians of three,
+    ``benchmarks/experiments/bench_identify_checkouts.py``).
     """
     run = _interval_integrator(actuator, dt, drive, plan)
     r = plan.refine
 
-    @jax.checkpoint
     def sample_step(carry, u_pair):
         y, memory = carry
         u_a, u_b = u_pair
@@ -686,4 +694,4 @@ def sample_stepper(actuator: Actuator, dt, drive, plan: StepPlan):
         q = actuator.output(y1, u_b, actuator.free_stroke(y1, memory1, u_b), drive)
         return (y1, memory1), q
 
-    return sample_step
+    return jax.checkpoint(sample_step) if checkpoint else sample_step

@@ -62,7 +62,8 @@ def _row_output(actuator, voltage, n, dt, drive, recording, plan: StepPlan):
     :class:`~.dataset.Dataset` pads the measurement). The same arithmetic as
     :func:`~.residuals.simulate_dataset` on the real samples."""
     carry, q0 = rest_carry(actuator, voltage[0], drive)
-    step = sample_stepper(actuator, dt, drive, plan)
+    # Forward mode only (values and JVPs): no remat to trace (sample_stepper).
+    step = sample_stepper(actuator, dt, drive, plan, checkpoint=False)
     t = voltage.shape[0]
     chunks = -(-(t - 1) // CHUNK)
     u = jnp.concatenate([voltage, jnp.full(chunks * CHUNK + 1 - t, voltage[-1])])
