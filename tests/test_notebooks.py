@@ -45,9 +45,9 @@ def kernel_dir():
 @pytest.mark.parametrize("source", SOURCES, ids=lambda p: p.stem)
 def test_notebook_runs(source, kernel_dir, monkeypatch):
     monkeypatch.setenv("STICKSLIP_NOTEBOOK_QUICK", "1")
-    # Each notebook's programs are its own (no other test runs them), so the workers'
-    # fresh cache would only be written, not read: notebook 04 took 131.0 s with a fresh
-    # cache against 119.5 s without (2026-12-07, quick mode, one alternating pair).
+    # A notebook runs once per suite and compiles mostly programs of its own, so the
+    # workers' fresh cache would mostly be written, not read: notebook 04 took 131.0 s
+    # with a fresh cache against 119.5 s without (2026-12-07, quick mode, one pair).
     monkeypatch.setenv("STICKSLIP_CACHE_DIR", "off")
     monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
     monkeypatch.setenv("JUPYTER_PATH", str(kernel_dir) + os.pathsep + os.environ.get(
