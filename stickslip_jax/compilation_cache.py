@@ -63,15 +63,15 @@ FROM_ENVIRONMENT = "from-environment"
 
 def use_compilation_cache(path: Path | str | None = FROM_ENVIRONMENT) -> bool:
     """Keep JAX's compiled programs in ``path`` (default: the command line's folder,
-    :data:`FROM_ENVIRONMENT`, so a notebook and the tests' workers read what commands
-    compiled; created if missing; None: do nothing), and the traced programs of
+    :data:`FROM_ENVIRONMENT`, so a notebook reads what commands compiled; created if
+    missing; None: do nothing), and the traced programs of
     :mod:`.program_store` in its subfolder :data:`PROGRAMS_SUBDIR`. JAX keeps
     every program however short its compile (identify compiles ~70 of 0.05 to 0.5 s:
     its Levenberg-Marquardt steps, single operations; about 3 s a second run would
     compile again, issue #28), locked and bounded by :data:`CACHE_MAX_BYTES`. Call it
     before JAX compiles anything. Returns whether the cache is on; a folder that cannot
     be created (a read-only home) leaves it off rather than stopping the caller."""
-    if isinstance(path, str) and path == FROM_ENVIRONMENT:
+    if path == FROM_ENVIRONMENT:
         path = cache_dir_from_env()
     if path is None:
         return False
