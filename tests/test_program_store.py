@@ -189,3 +189,85 @@ def test_a_second_process_simulates_from_the_stored_program(tmp_path):
             assert stored
     assert runs[0][0] == "True" and runs[0][1] == runs[1][1]
     assert sorted((tmp_path / "programs").glob("*.bin")) == stored
+
+
+@pytest.fixture
+def compiles():
+    """The XLA compilations (backend compile events) made while the test runs."""
+    events = []
+
+    def listen(event, duration, **_):
+        if "backend_compile" in event:
+            events.append(event)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    yield events
+    jax.monitoring.unregister_event_duration_listener(listen)
+
+
+def test_a_precompiled_program_runs_without_compiling_again(store, compiles):
+    x = np.linspace(0.1, 2.0, 7)
+    expected = jax.jit(scaled_sum, static_argnums=2)(x, 1.3, 3)
+    f = fresh()
+    TRACES.clear()
+    compiles.clear()
+    assert f.precompile(x, jnp.asarray(1.3), 3)
+    assert TRACES == [3] and compiles  # traced and compiled, not run
+    compiles.clear()
+    out = f(x, jnp.asarray(1.3), 3)
+    assert compiles == [] and TRACES == [3]
+    for a, b in zip(jax.tree.leaves(expected), jax.tree.leaves(out), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # Another program of the same function is compiled by its call, as before.
+    assert float(f(x, jnp.asarray(1.3), 2)[0]) == pytest.approx(1.3 * np.sum(x**2))
+    assert compiles
+
+
+def test_a_call_during_its_programs_precompiling_waits_for_it(store):
+    import threading
+
+    f = fresh()
+    TRACES.clear()
+    ready = threading.Thread(target=f.precompile, args=(np.arange(4.0), 0.5, 2))
+    ready.start()
+    outs = [f(np.arange(4.0), 0.5, 2) for _ in range(3)]
+    ready.join()
+    assert TRACES == [2] and len(list(store.glob("*.bin"))) == 1
+    assert all(float(o[0]) == 7.0 for o in outs)
+
+
+def test_without_a_store_nothing_is_precompiled():
+    before = program_store.program_store_dir()
+    use_program_store(None)
+    try:
+        assert fresh().precompile(np.ones(3), 2.0, 2) is False
+    finally:
+        use_program_store(before)
+
+
+def test_prefetched_programs_give_the_traced_bits(store, compiles):
+    """RecordingPrograms.prefetch compiles the wide program and the doubled plan's
+    value-only one beside the caller; what they then give equals the traced programs'
+    to the last bit."""
+    base = ss.load_params(TRUTH)
+    specs = paper_protocol(periods=1, amplitudes=(60.0,), frequencies=(500.0,),
+                           step_duration_s=0.005, sine_periods=1)
+    data = Dataset.from_recordings(simulate_set(base, specs[:2], noise_m=1e-9, seed=1))
+    plan = dataset_plan(base, data)
+    mask = sensitivities.perturbed_mask(base, ["Mp", "Kp", "rho0"])
+    programs = sensitivities.RecordingPrograms(data, base, mask, threads=1)
+    assert programs.width == 3  # two tangents go in one call of the wide program
+    thread = programs.prefetch(base, plan)
+    tangents = jax.tree.map(lambda x: np.stack([np.ones(np.shape(x)), 2 * np.ones(np.shape(x))]),
+                            eqx.filter(base, mask))
+    thread.join()
+    compiles.clear()
+    fetched = programs.sensitivities(base, tangents, plan)
+    doubled = programs.simulate(base, plan.doubled())
+    assert compiles == []  # both programs were ready
+    use_program_store(None)
+    traced = programs.sensitivities(base, tangents, plan)
+    np.testing.assert_array_equal(programs.simulate(base, plan.doubled()), doubled)
+    use_program_store(store)
+    for a, b in zip(fetched, traced, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -33,6 +33,7 @@ estimate, :func:`~.residuals.numerical_error`).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -207,6 +208,39 @@ class RecordingPrograms:
             for b in range(len(data))]
         self._length = np.asarray(data.mask.sum(axis=1), dtype=int)
         self._compiled: set = set()
+
+    def prefetch(self, actuator, plan: StepPlan) -> threading.Thread | None:
+        """Compile, in a thread of its own, the programs a later step is likely to need
+        on actuators of the structure of ``actuator``: the one of :attr:`width` tangents
+        at ``plan`` (the wide steps') and the value-only one at ``plan.doubled()`` (the
+        step-doubling error estimate at the end). Started before the first step, this
+        compiling takes the core the first step's own compiling and serial solver leave
+        idle. A call of either program meanwhile waits for it
+        (:func:`~stickslip_jax.program_store.stored_jit`); the programs, and so the
+        numbers, are those the call would have compiled. Returns the thread, or None
+        where there is nothing to prepare (no mask, or no program store: the calls
+        then compile as before)."""
+        from ..program_store import program_store_dir
+
+        if self.mask is None or program_store_dir() is None or not self._rows:
+            return None
+        perturbed, fixed = eqx.partition(actuator, self.mask)
+        perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
+        share = jax.tree.map(lambda x: np.zeros((self.width,) + np.shape(x)), perturbed)
+        row = self._rows[self._order(range(len(self._rows)))[0]]
+
+        def prepare():
+            for program, args in (
+                    (_row_with_tangents, (perturbed, fixed, share, *row, plan)),
+                    (_row, (actuator, *row, plan.doubled()))):
+                try:
+                    program.precompile(*args)
+                except Exception:  # noqa: BLE001 - the call compiles it then
+                    return
+
+        thread = threading.Thread(target=prepare, name="stickslip-prefetch", daemon=True)
+        thread.start()
+        return thread
 
     def _order(self, rows: Sequence[int]) -> list[int]:
         # Longest first, so that the last calls are short ones (threads finish together).

@@ -483,6 +483,10 @@ def identify(
         subset = [data.recordings[b] for b in rows]
         sub = Dataset.from_recordings(subset)
         stepping = kept_finer(dataset_plan(act, sub), stepping)
+        if programs is not None and not reports:
+            # The wide steps' program and the error estimate's, compiled beside the
+            # first step (they wait for nothing it computes; on one core, no gain).
+            programs.prefetch(act, kept_finer(dataset_plan(act, data), stepping))
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
         act, stepping, res, evaluator, out, segments = _solve_step(
             name, act, free, extra, sub, rows, weights, stepping, programs, max_steps, say)
