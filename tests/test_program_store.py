@@ -271,3 +271,31 @@ def test_prefetched_programs_give_the_traced_bits(store, compiles):
     use_program_store(store)
     for a, b in zip(fetched, traced, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_background_jobs_end_with_the_one_running_at_exit(store):
+    """At the interpreter's exit (``_finish_background``, an atexit hook) a prefetch
+    thread finishes its job and starts no other; the hook returns once it has."""
+    import threading
+
+    started, release, ran = threading.Event(), threading.Event(), []
+
+    def first():
+        started.set()
+        release.wait(10)
+        ran.append("first")
+
+    thread = sensitivities.in_background([first, lambda: ran.append("second")])
+    assert started.wait(10)
+    threading.Timer(0.2, release.set).start()
+    sensitivities._finish_background()
+    assert not thread.is_alive() and ran == ["first"]
+
+
+def test_nothing_runs_in_the_background_without_a_store():
+    before = program_store.program_store_dir()
+    use_program_store(None)
+    try:
+        assert sensitivities.in_background([lambda: None]) is None
+    finally:
+        use_program_store(before)

@@ -33,6 +33,7 @@ estimate, :func:`~.residuals.numerical_error`).
 
 from __future__ import annotations
 
+import atexit
 import threading
 from collections.abc import Sequence
 
@@ -176,6 +177,44 @@ def perturbed_mask(actuator, names: Sequence[str],
     return mask
 
 
+_BACKGROUND: list = []
+"""The threads :func:`in_background` started, with their stop flags."""
+
+
+def in_background(jobs: Sequence) -> threading.Thread | None:
+    """Run ``jobs`` (callables) one after the other in a thread, which it returns; None
+    without a program store, where nothing can be made ahead.
+
+    At the interpreter's exit the thread finishes the job it is in and starts no other
+    (:func:`_finish_background`): a thread left in XLA's compiler while Python shuts
+    down aborts the process ("FATAL: exception not rethrown"). The command line's
+    Ctrl-C ends the process at once (``os._exit``), thread and all."""
+    from ..program_store import program_store_dir
+
+    if program_store_dir() is None or not jobs:
+        return None
+    stop = threading.Event()
+
+    def run():
+        for job in jobs:
+            if stop.is_set():
+                return
+            job()
+
+    thread = threading.Thread(target=run, name="stickslip-prefetch", daemon=True)
+    _BACKGROUND[:] = [(t, s) for t, s in _BACKGROUND if t.is_alive()] + [(thread, stop)]
+    thread.start()
+    return thread
+
+
+@atexit.register
+def _finish_background() -> None:
+    for _, stop in _BACKGROUND:
+        stop.set()
+    for thread, _ in _BACKGROUND:
+        thread.join()
+
+
 class RecordingPrograms:
     """The recordings of ``data`` one by one through the shared programs (module
     docstring): traces (:meth:`simulate`) and traces with their derivatives along
@@ -209,38 +248,44 @@ class RecordingPrograms:
         self._length = np.asarray(data.mask.sum(axis=1), dtype=int)
         self._compiled: set = set()
 
+    def precompile(self, actuator, plan: StepPlan, *, widths: Sequence[int] = (),
+                   value_plans: Sequence[StepPlan] = ()) -> None:
+        """Make ready, without running them, the programs of actuators of the
+        structure of ``actuator``: the one of each of ``widths`` tangents per call at
+        ``plan`` and the value-only one at each of ``value_plans``
+        (:func:`~stickslip_jax.program_store.stored_jit`'s ``precompile``: a call of one
+        of them meanwhile waits for it; nothing is made without a program store). What
+        fails here is left to the call, which makes the program as before."""
+        rows = self._order(range(len(self._rows)))
+        if not rows:
+            return
+        row = self._rows[rows[0]]  # every row has the same shapes (padded)
+        jobs = [(_row, (actuator, *row, p)) for p in value_plans]
+        if self.mask is not None and widths:
+            perturbed, fixed = eqx.partition(actuator, self.mask)
+            perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
+            jobs += [(_row_with_tangents, (perturbed, fixed, jax.tree.map(
+                lambda x, w=w: np.zeros((w,) + np.shape(x)), perturbed), *row, plan))
+                for w in widths]
+        for program, args in jobs:
+            try:
+                program.precompile(*args)
+            except Exception:  # noqa: BLE001 - the call makes it then
+                return
+
     def prefetch(self, actuator, plan: StepPlan) -> threading.Thread | None:
-        """Compile, in a thread of its own, the programs a later step is likely to need
-        on actuators of the structure of ``actuator``: the one of :attr:`width` tangents
-        at ``plan`` (the wide steps') and the value-only one at ``plan.doubled()`` (the
-        step-doubling error estimate at the end). Started before the first step, this
+        """:meth:`precompile`, in a thread of its own, of what an identification's
+        later steps are likely to need: the program of :attr:`width` tangents at
+        ``plan`` (the wide steps') and the value-only one at ``plan.doubled()`` (the
+        step-doubling error estimate at the end). Started with the first step, this
         compiling takes the core the first step's own compiling and serial solver leave
-        idle. A call of either program meanwhile waits for it
-        (:func:`~stickslip_jax.program_store.stored_jit`); the programs, and so the
-        numbers, are those the call would have compiled. Returns the thread, or None
-        where there is nothing to prepare (no mask, or no program store: the calls
-        then compile as before)."""
-        from ..program_store import program_store_dir
-
-        if self.mask is None or program_store_dir() is None or not self._rows:
+        idle; the programs, and so the numbers, are those the calls would have made.
+        Returns the thread, or None without a mask or a program store (the calls then
+        compile as before)."""
+        if self.mask is None:
             return None
-        perturbed, fixed = eqx.partition(actuator, self.mask)
-        perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
-        share = jax.tree.map(lambda x: np.zeros((self.width,) + np.shape(x)), perturbed)
-        row = self._rows[self._order(range(len(self._rows)))[0]]
-
-        def prepare():
-            for program, args in (
-                    (_row_with_tangents, (perturbed, fixed, share, *row, plan)),
-                    (_row, (actuator, *row, plan.doubled()))):
-                try:
-                    program.precompile(*args)
-                except Exception:  # noqa: BLE001 - the call compiles it then
-                    return
-
-        thread = threading.Thread(target=prepare, name="stickslip-prefetch", daemon=True)
-        thread.start()
-        return thread
+        return in_background([lambda: self.precompile(
+            actuator, plan, widths=(self.width,), value_plans=(plan.doubled(),))])
 
     def _order(self, rows: Sequence[int]) -> list[int]:
         # Longest first, so that the last calls are short ones (threads finish together).
