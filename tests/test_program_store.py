@@ -126,19 +126,30 @@ def test_the_oldest_programs_go_past_the_size_limit(tmp_path):
     assert sorted(p.name for p in tmp_path.glob("*.bin")) == ["3.bin", "4.bin"]
 
 
-def test_the_simulators_programs_are_the_traced_ones_to_the_bit(store):
-    """A recording's trace and its derivatives along two tangents through the stored
-    program equal equinox.filter_jit's to the last bit, compiled in this process and
-    read back from the store as another process would."""
+def _two_recordings():
+    """``(actuator, plan, mask, programs)``: the truth, two short recordings of it, and
+    their shared programs carrying Mp, Kp and rho0 (one thread)."""
     base = ss.load_params(TRUTH)
     specs = paper_protocol(periods=1, amplitudes=(60.0,), frequencies=(500.0,),
                            step_duration_s=0.005, sine_periods=1)
     data = Dataset.from_recordings(simulate_set(base, specs[:2], noise_m=1e-9, seed=1))
-    plan = dataset_plan(base, data)
     mask = sensitivities.perturbed_mask(base, ["Mp", "Kp", "rho0"])
-    programs = sensitivities.RecordingPrograms(data, base, mask, threads=1)
-    tangents = jax.tree.map(lambda x: np.stack([np.ones(np.shape(x)), 2 * np.ones(np.shape(x))]),
-                            eqx.filter(base, mask))
+    return (base, dataset_plan(base, data), mask,
+            sensitivities.RecordingPrograms(data, base, mask, threads=1))
+
+
+def _two_tangents(base, mask):
+    """Two tangents along the mask's leaves: all ones, all twos."""
+    return jax.tree.map(lambda x: np.stack([np.ones(np.shape(x)), 2 * np.ones(np.shape(x))]),
+                        eqx.filter(base, mask))
+
+
+def test_the_simulators_programs_are_the_traced_ones_to_the_bit(store):
+    """A recording's trace and its derivatives along two tangents through the stored
+    program equal equinox.filter_jit's to the last bit, compiled in this process and
+    read back from the store as another process would."""
+    base, plan, mask, programs = _two_recordings()
+    tangents = _two_tangents(base, mask)
     stored = programs.sensitivities(base, tangents, plan)
     kept = sorted(store.glob("*.bin"))  # the planning's and the recordings' programs
     assert kept
@@ -249,17 +260,10 @@ def test_prefetched_programs_give_the_traced_bits(store, compiles):
     """RecordingPrograms.prefetch compiles the wide program and the doubled plan's
     value-only one beside the caller; what they then give equals the traced programs'
     to the last bit."""
-    base = ss.load_params(TRUTH)
-    specs = paper_protocol(periods=1, amplitudes=(60.0,), frequencies=(500.0,),
-                           step_duration_s=0.005, sine_periods=1)
-    data = Dataset.from_recordings(simulate_set(base, specs[:2], noise_m=1e-9, seed=1))
-    plan = dataset_plan(base, data)
-    mask = sensitivities.perturbed_mask(base, ["Mp", "Kp", "rho0"])
-    programs = sensitivities.RecordingPrograms(data, base, mask, threads=1)
+    base, plan, mask, programs = _two_recordings()
     assert programs.width == 3  # two tangents go in one call of the wide program
     thread = programs.prefetch(base, plan)
-    tangents = jax.tree.map(lambda x: np.stack([np.ones(np.shape(x)), 2 * np.ones(np.shape(x))]),
-                            eqx.filter(base, mask))
+    tangents = _two_tangents(base, mask)
     thread.join()
     compiles.clear()
     fetched = programs.sensitivities(base, tangents, plan)
