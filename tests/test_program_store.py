@@ -277,6 +277,48 @@ def test_prefetched_programs_give_the_traced_bits(store, compiles):
         np.testing.assert_array_equal(a, b)
 
 
+def test_a_prefetch_without_the_wide_program_makes_only_the_error_estimates(
+        store, compiles):
+    """``prefetch(wide=False)``: the doubled plan's value-only program is ready, the
+    wide one is left to its call (which compiles it); ``goes_wide`` says which columns
+    counts run it (two of width 3 do, one does not)."""
+    base, plan, mask, programs = _two_recordings()
+    assert programs.goes_wide(2) and not programs.goes_wide(1)
+    programs.prefetch(base, plan, wide=False).join()
+    compiles.clear()
+    programs.simulate(base, plan.doubled())
+    assert compiles == []
+    programs.sensitivities(base, _two_tangents(base, mask), plan)
+    assert compiles
+
+
+def test_identify_prefetches_the_wide_program_only_for_a_later_wide_jacobian(
+        monkeypatch):
+    """The first step's prefetch asks for the wide program when a later step's or the
+    uncertainty's Jacobian has more than half the width in columns (the hysteresis
+    step's PI weights, every fitted quantity), not for a dynamics step alone."""
+    asked = []
+
+    class Stop(Exception):
+        pass
+
+    def record(self, actuator, plan, *, wide=True):
+        asked.append(wide)
+        raise Stop  # the choice is all this test needs
+
+    monkeypatch.setattr(sensitivities.RecordingPrograms, "prefetch", record)
+    base = ss.load_params(TRUTH)
+    specs = paper_protocol(periods=3, amplitudes=(60.0,), frequencies=(500.0,),
+                           step_duration_s=0.03, sine_periods=2)  # enough to determine
+    recs = simulate_set(base, specs, noise_m=1e-9, seed=1)
+    for steps, uncertainty in [(("dynamics",), False), (("dynamics",), True),
+                               (("dynamics", "hysteresis"), False)]:
+        with pytest.raises(Stop):
+            ss.identify(recs, init=base, fix={"Ms": 0.0247}, steps=steps,
+                        uncertainty=uncertainty, n_pi=6)
+    assert asked == [False, True, True]
+
+
 def test_background_jobs_end_with_the_one_running_at_exit(store):
     """At the interpreter's exit (``_finish_background``, an atexit hook) a prefetch
     thread finishes its job and starts no other; the hook returns once it has."""

@@ -177,6 +177,13 @@ def perturbed_mask(actuator, names: Sequence[str],
     return mask
 
 
+def mask_size(actuator, mask) -> int:
+    """The number of scalars in the leaves of ``actuator`` that ``mask`` (a pytree of
+    bools shaped like it, :func:`perturbed_mask`) marks: a step's Jacobian columns."""
+    return sum(int(np.size(x)) for x, m in zip(jax.tree.leaves(actuator),
+                                                jax.tree.leaves(mask), strict=True) if m)
+
+
 _BACKGROUND: list = []
 """The threads :func:`in_background` started, with their stop flags."""
 
@@ -234,10 +241,7 @@ class RecordingPrograms:
         self.threads = jacobian_threads() if threads is None else int(threads)
         self.width = width
         if mask is not None and width is None:
-            size = sum(int(np.size(x)) for x, m in zip(jax.tree.leaves(actuator),
-                                                        jax.tree.leaves(mask), strict=True)
-                       if m)
-            self.width = max(1, -(-size // self.threads))
+            self.width = max(1, -(-mask_size(actuator, mask) // self.threads))
         self._rows = [
             (jnp.asarray(data.voltages[b]),
              jnp.asarray(int(data.mask[b].sum()), dtype=jnp.int32),
@@ -273,19 +277,28 @@ class RecordingPrograms:
             except Exception:  # noqa: BLE001 - the call makes it then
                 return
 
-    def prefetch(self, actuator, plan: StepPlan) -> threading.Thread | None:
+    def prefetch(self, actuator, plan: StepPlan, *, wide: bool = True
+                 ) -> threading.Thread | None:
         """:meth:`precompile`, in a thread of its own, of what an identification's
         later steps are likely to need: the program of :attr:`width` tangents at
-        ``plan`` (the wide steps') and the value-only one at ``plan.doubled()`` (the
-        step-doubling error estimate at the end). Started with the first step, this
-        compiling takes the core the first step's own compiling and serial solver leave
-        idle; the programs, and so the numbers, are those the calls would have made.
-        Returns the thread, or None without a mask or a program store (the calls then
-        compile as before)."""
+        ``plan`` (the wide steps'; left out when ``wide`` is False, no later Jacobian
+        having that many columns: :meth:`goes_wide`) and the value-only one at
+        ``plan.doubled()`` (the step-doubling error estimate at the end). Started with
+        the first step, this compiling takes the core the first step's own compiling
+        and serial solver leave idle; the programs, and so the numbers, are those the
+        calls would have made. Returns the thread, or None without a mask or a program
+        store (the calls then compile as before)."""
         if self.mask is None:
             return None
+        widths = (self.width,) if wide else ()
         return in_background([lambda: self.precompile(
-            actuator, plan, widths=(self.width,), value_plans=(plan.doubled(),))])
+            actuator, plan, widths=widths, value_plans=(plan.doubled(),))])
+
+    def goes_wide(self, columns: int) -> bool:
+        """Whether a Jacobian of ``columns`` columns (through the mechanics) runs the
+        program of :attr:`width` tangents (:func:`tangents_per_call`), not the
+        one-tangent one."""
+        return self.mask is not None and tangents_per_call(columns, self.width) > 1
 
     def _order(self, rows: Sequence[int]) -> list[int]:
         # Longest first, so that the last calls are short ones (threads finish together).

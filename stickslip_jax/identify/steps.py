@@ -67,7 +67,7 @@ from .residuals import (
     simulate_dataset,
 )
 from .sampling import check_sample_rates
-from .sensitivities import RecordingPrograms, StepJacobian, perturbed_mask
+from .sensitivities import RecordingPrograms, StepJacobian, mask_size, perturbed_mask
 from .solve import (
     LMSettings,
     SolveResult,
@@ -485,8 +485,13 @@ def identify(
         stepping = kept_finer(dataset_plan(act, sub), stepping)
         if programs is not None and not reports:
             # The wide steps' program and the error estimate's, compiled beside the
-            # first step (they wait for nothing it computes; on one core, no gain).
-            programs.prefetch(act, kept_finer(dataset_plan(act, data), stepping))
+            # first step (they wait for nothing it computes; on one core, no gain);
+            # the wide one only where a later Jacobian runs it.
+            later = [f for n, (r, f, _) in chosen.items() if n != name and r and f]
+            wide = any(programs.goes_wide(mask_size(act, perturbed_mask(act, f, extra)))
+                       for f in later + ([free_all] if uncertainty else []))
+            programs.prefetch(act, kept_finer(dataset_plan(act, data), stepping),
+                              wide=wide)
         say(f"[{name}] {len(subset)} recording(s), free: {', '.join(free)}")
         act, stepping, res, evaluator, out, segments = _solve_step(
             name, act, free, extra, sub, rows, weights, stepping, programs, max_steps, say)
