@@ -345,3 +345,20 @@ def test_nothing_runs_in_the_background_without_a_store():
         assert sensitivities.in_background([lambda: None]) is None
     finally:
         use_program_store(before)
+
+
+def test_weak_and_strong_leaves_share_one_program(store, compiles):
+    """An actuator whose float leaves are weakly typed (``jnp.asarray(0.5)``) and the
+    same one with ordinary leaves run one value program and one tangent program, to the
+    same bits: the programs are keyed by argument type, weak type included."""
+    base, plan, mask, programs = _two_recordings()
+    weak = jax.tree.map(lambda x: jnp.asarray(float(x)) if np.ndim(x) == 0 else x, base)
+    assert any(getattr(x, "weak_type", False) for x in jax.tree.leaves(weak))
+    tangents = _two_tangents(base, mask)
+    q_strong = programs.simulate(base, plan)
+    s_strong = programs.sensitivities(base, tangents, plan)
+    compiles.clear()
+    np.testing.assert_array_equal(programs.simulate(weak, plan), q_strong)
+    for a, b in zip(programs.sensitivities(weak, tangents, plan), s_strong, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert compiles == []

@@ -128,6 +128,19 @@ def _sensor_tangents(perturbed, fixed, tangents, t, q, recordings):
     return jax.vmap(row)(t, q, recordings)
 
 
+def strong_leaves(tree):
+    """``tree`` with every weakly typed JAX array leaf made an ordinary (strongly typed)
+    numpy array of its dtype. A program is traced and kept per argument type, weak type
+    included (:func:`~stickslip_jax.program_store.stored_jit`), and an actuator's
+    leaves are weak or not by where they came from (``jnp.asarray(0.0)`` is weak, the
+    fitted values in numpy are not): the same program was compiled twice per actuator
+    structure (seen in a reduced diagnosis: one of its 30 programs). Under float64
+    throughout, a weak and a strong float64 leaf promote alike, so the arithmetic is
+    the same."""
+    return jax.tree.map(
+        lambda x: np.asarray(x) if isinstance(x, jax.Array) and x.weak_type else x, tree)
+
+
 def sensor_only_columns(tangents) -> np.ndarray:
     """Which of the k columns of ``tangents`` (a pytree of an actuator's leaves with a
     leading axis of k, as :meth:`RecordingPrograms.sensitivities` takes) move only the
@@ -264,6 +277,7 @@ class RecordingPrograms:
         if not rows:
             return
         row = self._rows[rows[0]]  # every row has the same shapes (padded)
+        actuator = strong_leaves(actuator)
         jobs = [(_row, (actuator, *row, p)) for p in value_plans]
         if self.mask is not None and widths:
             perturbed, fixed = eqx.partition(actuator, self.mask)
@@ -334,6 +348,7 @@ class RecordingPrograms:
         """``(outputs, positions)`` [m] (R, T) of the recordings ``rows`` through the
         value-only program: the model outputs and the positions the sensor read."""
         check_readable(actuator, self.data)
+        actuator = strong_leaves(actuator)
         key = ("value", plan, jax.tree.structure(actuator))
         done = self._run(self._order(rows), lambda b: _row(actuator, *self._rows[b], plan),
                          key)
@@ -353,7 +368,7 @@ class RecordingPrograms:
         single plain JVP (:func:`tangents_per_call`); more, :attr:`width` per call."""
         rows = self._all(rows)
         check_readable(actuator, self.data)
-        perturbed, fixed = eqx.partition(actuator, self.mask)
+        perturbed, fixed = eqx.partition(strong_leaves(actuator), self.mask)
         perturbed = jax.tree.map(lambda x: jnp.asarray(x, dtype=float), perturbed)
         tangents = jax.tree.map(lambda x: np.asarray(x, dtype=float), tangents)
         k = jax.tree.leaves(tangents)[0].shape[0]
