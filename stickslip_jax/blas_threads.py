@@ -9,13 +9,26 @@ the 2-core CPU, with other work on the machine, `stickslip identify` of the fixt
 set took 84 s with OpenBLAS's default threads and 56 s with one (issue #28;
 ``numpy``'s ``JᵀJ`` alone 1.4 s instead of 11 ms, and the Levenberg-Marquardt steps,
 whose QR runs in scipy's OpenBLAS through XLA, as slow). The command line therefore
-runs BLAS on one thread (:func:`limit_blas_threads`, from ``cli/common.py``).
+runs BLAS on one thread (:func:`limit_blas_threads`, from ``cli/common.py``), and so
+do :func:`~stickslip_jax.identify`, :func:`~stickslip_jax.diagnose` and
+:func:`~stickslip_jax.design_experiment` while they run (:func:`one_blas_thread`), for a
+notebook or script that calls them. Two reduced diagnoses side by side on the 2-core
+CPU (the test suite's two workers; issue #64, two pairs each): the null set's 20.6-21.6 s
+with OpenBLAS's default threads, 18.6-19.3 s with one; the structural mode's 88-89 s
+either way.
 """
 
 from __future__ import annotations
 
 import ctypes
+import functools
+import os
 import re
+import threading
+
+_GETTERS = ("openblas_get_num_threads", "scipy_openblas_get_num_threads",
+            "scipy_openblas_get_num_threads64_")
+"""OpenBLAS's thread getters, the same three builds as :data:`_SETTERS`."""
 
 _SETTERS = ("openblas_set_num_threads", "scipy_openblas_set_num_threads",
             "scipy_openblas_set_num_threads64_")
@@ -56,3 +69,63 @@ def limit_blas_threads(threads: int = 1) -> list[str]:
                 done.append(path)
                 break
     return done
+
+
+def blas_thread_counts() -> dict[str, int]:
+    """``{path: threads}`` of every OpenBLAS loaded in this process."""
+    counts = {}
+    for path in _loaded_openblas():
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in _GETTERS:
+            getter = getattr(lib, name, None)
+            if getter is not None:
+                getter.argtypes = []
+                getter.restype = ctypes.c_int
+                counts[path] = int(getter())
+                break
+    return counts
+
+
+def _set_counts(counts: dict[str, int]) -> None:
+    for path, threads in counts.items():
+        lib = ctypes.CDLL(path)
+        for name in _SETTERS:
+            setter = getattr(lib, name, None)
+            if setter is not None:
+                setter.argtypes = [ctypes.c_int]
+                setter.restype = None
+                setter(int(threads))
+                break
+
+
+_HELD = {"depth": 0, "saved": {}}
+_HELD_LOCK = threading.Lock()
+
+
+def one_blas_thread(fn):
+    """Decorator: ``fn`` runs with every loaded OpenBLAS on one thread (module
+    docstring), and the counts it found are put back when the last such call running
+    in the process returns (calls may nest, or run in threads side by side). Where
+    ``OPENBLAS_NUM_THREADS`` is set, the user's choice stands and nothing is changed."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        if "OPENBLAS_NUM_THREADS" in os.environ:
+            return fn(*args, **kwargs)
+        with _HELD_LOCK:
+            if _HELD["depth"] == 0:
+                _HELD["saved"] = blas_thread_counts()
+                limit_blas_threads(1)
+            _HELD["depth"] += 1
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            with _HELD_LOCK:
+                _HELD["depth"] -= 1
+                if _HELD["depth"] == 0:
+                    _set_counts(_HELD["saved"])
+
+    return wrapper

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..blas_threads import one_blas_thread
 from ..diagnose.catalogue import NAMES, candidate
 from ..diagnose.config import DiagnoseConfig
 from ..diagnose.problem import Problem, baseline_free
@@ -316,6 +317,7 @@ def _greedy(asked: Sequence[_Asked], durations: np.ndarray, base: np.ndarray,
         now = after
 
 
+@one_blas_thread
 def design_experiment(recordings: Sequence, diagnosis: str | Path, *,
                       total_time_s: float | None = None, limits: DriveLimits | None = None,
                       fix: dict | None = None, entries: Sequence[str] | None = None,

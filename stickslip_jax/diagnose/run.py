@@ -103,6 +103,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..blas_threads import one_blas_thread
 from ..identify.dataset import Dataset
 from ..identify.parameters import ParameterMap, scale_invariant_names
 from ..identify.residuals import numerical_error
@@ -752,6 +753,7 @@ def _final_phase(ctx: _Context, now: _Rounds, chi2_0: float) -> _Final:
                   _verdict(structured, now.accepted, within), left, numerical)
 
 
+@one_blas_thread
 def diagnose(recordings: Sequence, *, init: Actuator, fix: dict | None = None,
              identify_steps: Sequence[str] = STEPS, candidates: Sequence[str] | None = None,
              config: DiagnoseConfig | None = None,

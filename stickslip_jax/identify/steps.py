@@ -35,6 +35,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from ..blas_threads import one_blas_thread
 from ..model.actuator import Actuator
 from ..precision import require_float64
 from ..stepping import StepPlan
@@ -330,6 +331,7 @@ def _apply_fixed(actuator: Actuator, fixed: dict[str, float]) -> Actuator:
     return actuator
 
 
+@one_blas_thread
 def identify(
     recordings: Sequence,
     *,
