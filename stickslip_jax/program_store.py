@@ -264,20 +264,18 @@ def stored_jit(fn: Callable) -> Callable:
         folder = _store["dir"]
         if folder is None:
             return None, None
-        dynamic, static = eqx.partition(args, eqx.is_array)
-        leaves, treedef = jax.tree.flatten(dynamic)
-        if any(isinstance(x, jax.core.Tracer) for x in leaves) or any(
-                isinstance(x, jax.Array) and len(x.sharding.device_set) > 1 for x in leaves):
-            return None, None  # inside a transformation, or sharded over devices
-        static_leaves, static_def = jax.tree.flatten(static)
-        avals = tuple(_aval(x) for x in leaves)
+        key, leaves = _call_key(args, folder)
+        if key is None:
+            return None, None
         try:
-            key = (treedef, static_def, tuple((type(x), x) for x in static_leaves), avals,
-                   folder)
             program = programs.get(key, False)
         except TypeError:  # an unhashable static value
             return None, None
         if program is False or isinstance(program, Future):
+            dynamic, static = eqx.partition(args, eqx.is_array)
+            treedef = jax.tree.structure(dynamic)
+            static_leaves, static_def = jax.tree.flatten(static)
+            avals = tuple(_aval(x) for x in leaves)
             program = _made_once(programs, key, lambda: _load_or_export(
                 fn, name, folder, treedef, static, static_def, static_leaves, leaves,
                 avals), leaves if compile_now else None)
@@ -297,6 +295,29 @@ def stored_jit(fn: Callable) -> Callable:
     call.jitted = jitted
     call.precompile = precompile
     return call
+
+
+def _call_key(args, folder) -> tuple:
+    """``(key, leaves)``: the in-memory key of the program that ``args`` call (the
+    arguments' pytree structure, each leaf's shape, dtype and weak type if an array
+    (``equinox.is_array``), else its type and value, and the store folder) and the
+    array leaves, in the order ``equinox.partition(args, is_array)`` flattens them;
+    ``(None, None)`` for tracers (inside a transformation) or arrays sharded over
+    several devices. Made at every call from one flattening: the way through
+    ``equinox.partition`` and :func:`_aval` took 0.6 ms of a 4.4 ms recording's
+    simulation (issue #64), and is taken only for a new program (its disk key)."""
+    flat, treedef = jax.tree.flatten(args)
+    parts, leaves = [], []
+    for x in flat:
+        if eqx.is_array(x):
+            if isinstance(x, jax.core.Tracer) or (
+                    isinstance(x, jax.Array) and len(x.sharding.device_set) > 1):
+                return None, None
+            leaves.append(x)
+            parts.append((x.shape, x.dtype, bool(getattr(x, "weak_type", False))))
+        else:
+            parts.append((type(x), x))
+    return (treedef, tuple(parts), folder), leaves
 
 
 def _made_once(programs: dict, key, make: Callable, leaves) -> Callable | None:

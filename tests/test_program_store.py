@@ -362,3 +362,31 @@ def test_weak_and_strong_leaves_share_one_program(store, compiles):
     for a, b in zip(programs.sensitivities(weak, tangents, plan), s_strong, strict=True):
         np.testing.assert_array_equal(a, b)
     assert compiles == []
+
+
+def test_a_calls_key_sees_what_the_program_depends_on():
+    """``_call_key``, made at every call from one flattening: its leaves are the ones
+    ``equinox.partition`` gives the program, in the same order; keys differ where the
+    program would (an array's place, shape, dtype or weak type; a static value) and
+    agree where it would not (other values); a tracer has no key."""
+    base = ss.load_params(TRUTH)
+    args = (base, np.ones(3), 2, "a", (jnp.asarray(0.5), None, 1.5))
+    key, leaves = program_store._call_key(args, "folder")
+    expected = jax.tree.leaves(eqx.partition(args, eqx.is_array)[0])
+    assert len(leaves) == len(expected) and all(
+        a is b for a, b in zip(leaves, expected, strict=True))
+
+    def key_of(*a):
+        return program_store._call_key(a, "folder")[0]
+
+    x = np.ones(3)
+    assert key_of(x, 1.0) == key_of(2 * x, 1.0)  # values of arrays: the same program
+    assert len({key_of(x, 1.0), key_of(1.0, x), key_of(x, 2.0), key_of(x, 1),
+                key_of(np.ones(4), 1.0), key_of(x.astype(np.float32), 1.0),
+                key_of(jnp.asarray(x), 1.0)}) == 6  # jnp ones(3) float64 = numpy's
+    assert key_of(jnp.asarray(1.0), x) != key_of(jnp.asarray(1.0, dtype=float), x)  # weak
+    assert program_store._call_key(args, "folder")[0] != program_store._call_key(
+        args, "other")[0]
+    seen = []
+    jax.jit(lambda v: seen.append(program_store._call_key((v, 1.0), "f")) or v)(x)
+    assert seen == [(None, None)]
