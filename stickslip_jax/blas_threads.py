@@ -47,6 +47,31 @@ def _loaded_openblas() -> list[str]:
                                                     flags=re.IGNORECASE)})
 
 
+def _function(path: str, names: tuple[str, ...]):
+    """The first of ``names`` that the library at ``path`` exports, None if none (or
+    the library does not load)."""
+    try:
+        lib = ctypes.CDLL(path)
+    except OSError:
+        return None
+    for name in names:
+        fn = getattr(lib, name, None)
+        if fn is not None:
+            return fn
+    return None
+
+
+def _set_threads(path: str, threads: int) -> bool:
+    """Set the OpenBLAS at ``path`` to ``threads`` threads; whether it could be."""
+    setter = _function(path, _SETTERS)
+    if setter is None:
+        return False
+    setter.argtypes = [ctypes.c_int]
+    setter.restype = None
+    setter(int(threads))
+    return True
+
+
 def limit_blas_threads(threads: int = 1) -> list[str]:
     """Set every OpenBLAS loaded in this process to ``threads`` threads; returns the
     libraries set. Libraries loaded later keep their own setting (numpy and scipy load
@@ -54,51 +79,19 @@ def limit_blas_threads(threads: int = 1) -> list[str]:
     threads = int(threads)
     if threads < 1:
         raise ValueError(f"threads must be ≥ 1, got {threads}")
-    done = []
-    for path in _loaded_openblas():
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in _SETTERS:
-            setter = getattr(lib, name, None)
-            if setter is not None:
-                setter.argtypes = [ctypes.c_int]
-                setter.restype = None
-                setter(threads)
-                done.append(path)
-                break
-    return done
+    return [path for path in _loaded_openblas() if _set_threads(path, threads)]
 
 
 def blas_thread_counts() -> dict[str, int]:
     """``{path: threads}`` of every OpenBLAS loaded in this process."""
     counts = {}
     for path in _loaded_openblas():
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in _GETTERS:
-            getter = getattr(lib, name, None)
-            if getter is not None:
-                getter.argtypes = []
-                getter.restype = ctypes.c_int
-                counts[path] = int(getter())
-                break
+        getter = _function(path, _GETTERS)
+        if getter is not None:
+            getter.argtypes = []
+            getter.restype = ctypes.c_int
+            counts[path] = int(getter())
     return counts
-
-
-def _set_counts(counts: dict[str, int]) -> None:
-    for path, threads in counts.items():
-        lib = ctypes.CDLL(path)
-        for name in _SETTERS:
-            setter = getattr(lib, name, None)
-            if setter is not None:
-                setter.argtypes = [ctypes.c_int]
-                setter.restype = None
-                setter(int(threads))
-                break
 
 
 _HELD = {"depth": 0, "saved": {}}
@@ -126,6 +119,7 @@ def one_blas_thread(fn):
             with _HELD_LOCK:
                 _HELD["depth"] -= 1
                 if _HELD["depth"] == 0:
-                    _set_counts(_HELD["saved"])
+                    for path, threads in _HELD["saved"].items():
+                        _set_threads(path, threads)
 
     return wrapper
