@@ -18,9 +18,9 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
-import sys
 from pathlib import Path
+
+from checkout_process import run_in_checkout
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -48,15 +48,8 @@ print(json.dumps({"wall_s": wall, "nrmse_mean": float(ident.nrmse.mean()),
 
 def one_run(checkout: Path, steps: str, uncertainty: str) -> dict:
     """One cold ``identify`` of ``checkout`` in a fresh process."""
-    env = {"PYTHONPATH": str(checkout.resolve()), "PATH": "/usr/bin:/bin",
-           "MPLBACKEND": "Agg"}
-    done = subprocess.run(
-        [sys.executable, "-c", RUN, str(ROOT / "fixtures" / "identification"), steps,
-         uncertainty], env=env, cwd=checkout, capture_output=True, text=True, check=True)
-    row = json.loads(done.stdout.strip().splitlines()[-1])
-    if not row["module"].startswith(str(checkout.resolve())):
-        raise RuntimeError(f"{checkout} ran {row['module']}")
-    return row
+    return run_in_checkout(checkout, RUN, (ROOT / "fixtures" / "identification", steps,
+                                           uncertainty))
 
 
 def main() -> None:

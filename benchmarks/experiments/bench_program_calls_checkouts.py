@@ -21,10 +21,10 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
+
+from checkout_process import run_in_checkout
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -73,15 +73,8 @@ FIGURES = ("value_ms", "three_singly_ms")
 
 def one_run(checkout: Path, cache: Path) -> dict:
     """One warm measurement of ``checkout`` in a fresh process."""
-    env = {"PYTHONPATH": str(checkout.resolve()), "PATH": "/usr/bin:/bin",
-           "MPLBACKEND": "Agg", "OPENBLAS_NUM_THREADS": "1"}
-    done = subprocess.run(
-        [sys.executable, "-c", RUN, str(ROOT / "fixtures" / "identification" / "truth.json"),
-         str(cache)], env=env, cwd=checkout, capture_output=True, text=True, check=True)
-    row = json.loads(done.stdout.strip().splitlines()[-1])
-    if not row["module"].startswith(str(checkout.resolve())):
-        raise RuntimeError(f"{checkout} ran {row['module']}")
-    return row
+    return run_in_checkout(checkout, RUN, (ROOT / "fixtures" / "identification" / "truth.json",
+                                           cache), OPENBLAS_NUM_THREADS="1")
 
 
 def main() -> None:
