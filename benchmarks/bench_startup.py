@@ -2,12 +2,16 @@
 
     .venv/bin/python benchmarks/bench_startup.py --json benchmarks/results/startup.json
     .venv/bin/python benchmarks/bench_startup.py --against /path/to/other/checkout
+    .venv/bin/python benchmarks/bench_startup.py --against-pythonpath /tmp/other_deps
 
 Each run is a fresh process (``python -c "import stickslip_jax.cli.main"``, the working
 directory the checkout measured, so that its package is the one imported); the median
 and range over ``--repeats`` runs. With ``--against DIR`` another checkout (a worktree
 of an earlier commit) is timed the same way, its runs interleaved with these, and the
-ratio printed: the machine's load then weighs on both alike. One run more with
+ratio printed: the machine's load then weighs on both alike. With
+``--against-pythonpath DIR`` the other arm is this checkout with ``DIR`` first on
+``PYTHONPATH``: other versions of dependencies, installed there with ``pip install
+--no-deps --target DIR``. One run more with
 ``python -X importtime`` lists the modules whose import took longest (cumulative) and
 says whether the optional heavy ones (:data:`OPTIONAL`, imported where a command needs
 them) were imported at start.
@@ -15,6 +19,7 @@ them) were imported at start.
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -30,20 +35,33 @@ z_ba surface's solver, the figures)."""
 IMPORT = "import stickslip_jax.cli.main"
 
 
-def import_seconds(checkout: Path) -> float:
+def environment(pythonpath: Path | None) -> dict[str, str] | None:
+    """This environment with ``pythonpath`` first on ``PYTHONPATH`` (None: unchanged)."""
+    if pythonpath is None:
+        return None
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(pythonpath), env.get("PYTHONPATH"))
+                                        if p)
+    return env
+
+
+def import_seconds(checkout: Path, pythonpath: Path | None = None) -> float:
     """Wall time of one fresh process importing the command line of ``checkout`` [s]."""
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", IMPORT], cwd=checkout, check=True)
+    subprocess.run([sys.executable, "-c", IMPORT], cwd=checkout, check=True,
+                   env=environment(pythonpath))
     return time.perf_counter() - t0
 
 
-def import_profile(checkout: Path, top: int) -> tuple[list[tuple[str, float]], list[str]]:
+def import_profile(checkout: Path, top: int, pythonpath: Path | None = None
+                   ) -> tuple[list[tuple[str, float]], list[str]]:
     """The ``top`` slowest imports (cumulative [s]) and the :data:`OPTIONAL` modules
     imported, from ``-X importtime`` (one run)."""
     code = (f"{IMPORT}; import json, sys; "
             f"print(json.dumps([m for m in {list(OPTIONAL)!r} if m in sys.modules]))")
     out = subprocess.run([sys.executable, "-X", "importtime", "-c", code], cwd=checkout,
-                         capture_output=True, text=True, check=True)
+                         capture_output=True, text=True, check=True,
+                         env=environment(pythonpath))
     rows = []
     for line in out.stderr.splitlines():
         parts = line.split("|")
@@ -58,29 +76,40 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=9)
     ap.add_argument("--against", type=Path, default=None,
                     help="another checkout to time beside this one (interleaved)")
+    ap.add_argument("--against-pythonpath", type=Path, default=None,
+                    help="time this checkout with DIR first on PYTHONPATH beside it")
     ap.add_argument("--top", type=int, default=12)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    arms = {"this": ROOT} | ({"against": args.against.resolve()} if args.against else {})
-    for path in arms.values():
-        import_seconds(path)  # warm the file cache and the bytecode
+    if args.against and args.against_pythonpath:
+        ap.error("--against and --against-pythonpath: give one")
+    arms = {"this": (ROOT, None)}
+    if args.against:
+        arms["against"] = (args.against.resolve(), None)
+    elif args.against_pythonpath:
+        arms["against"] = (ROOT, args.against_pythonpath.resolve())
+    for path, extra in arms.values():
+        import_seconds(path, extra)  # warm the file cache and the bytecode
     times: dict[str, list[float]] = {name: [] for name in arms}
     for _ in range(args.repeats):
-        for name, path in arms.items():
-            times[name].append(import_seconds(path))
+        for name, (path, extra) in arms.items():
+            times[name].append(import_seconds(path, extra))
     result: dict = {"import": IMPORT, "repeats": args.repeats, "arms": {}}
-    for name, path in arms.items():
-        slowest, optional = import_profile(path, args.top)
+    for name, (path, extra) in arms.items():
+        slowest, optional = import_profile(path, args.top, extra)
         med = statistics.median(times[name])
-        result["arms"][name] = {"checkout": str(path), "commit": commit_of(path), "median_s": med,
+        result["arms"][name] = {"checkout": str(path), "commit": commit_of(path),
+                                "pythonpath_first": str(extra) if extra else None,
+                                "median_s": med,
                                 "min_s": min(times[name]), "max_s": max(times[name]),
                                 "optional_imported": optional,
                                 "slowest_imports_s": slowest}
-        print(f"{name} ({path}): median {med:.2f} s ({min(times[name]):.2f}-"
+        where = f"{path}, PYTHONPATH {extra} first" if extra else f"{path}"
+        print(f"{name} ({where}): median {med:.2f} s ({min(times[name]):.2f}-"
               f"{max(times[name]):.2f}); optional modules imported: {optional or 'none'}")
         for module, seconds in slowest:
             print(f"    {seconds:6.3f} s  {module}")
-    if args.against:
+    if "against" in arms:
         ratio = result["arms"]["this"]["median_s"] / result["arms"]["against"]["median_s"]
         result["this_over_against"] = ratio
         print(f"this / against: {ratio:.2f}")
