@@ -88,10 +88,12 @@ def measured_step_mode(step: Recording, *, band=(100.0, 6000.0), window_s: float
         decay = np.exp(-np.outer(zetas * w / np.sqrt(1 - zetas**2), t))  # (Z, L)
         basis = np.stack([np.ones_like(decay), decay * np.cos(w * t), decay * np.sin(w * t)],
                          axis=-1)  # (Z, L, 3)
-        gram = np.einsum("zli,zlj->zij", basis, basis)
-        rhs = np.einsum("zli,l->zi", basis, seg)
-        coef = np.linalg.solve(gram + 1e-30 * np.eye(3), rhs[..., None])[..., 0]
-        cost = np.sum((np.einsum("zli,zi->zl", basis, coef) - seg) ** 2, axis=1)
+        # Batched matrix products, not einsum, whose unoptimised loops took 0.75 of this
+        # function's 0.85 s (issue #64); the grid point chosen is the same on every
+        # bundled step and the tests' random truths.
+        basis_t = basis.transpose(0, 2, 1)  # (Z, 3, L)
+        coef = np.linalg.solve(basis_t @ basis + 1e-30 * np.eye(3), basis_t @ seg[:, None])
+        cost = np.sum(((basis @ coef)[..., 0] - seg) ** 2, axis=1)
         i = int(np.argmin(cost))
         if cost[i] < best[0]:
             best = (float(cost[i]), float(f), float(zetas[i]))
