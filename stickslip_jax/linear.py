@@ -93,6 +93,13 @@ class StickChain:
         b = np.array([self.Kp, 0.0])
         return m, d, k, b
 
+    def response(self, f_Hz, output: str = "q") -> np.ndarray:
+        """:func:`frequency_response` of this chain in numpy (no JAX operation to
+        compile: a figure's one number) [m/m], at ``f_Hz`` [Hz], any shape."""
+        s = 1j * TWO_PI * np.asarray(f_Hz, dtype=float)
+        return _chain_response(self.Mp, self.Dp, self.Kp, self.Ms, self.Ds, self.k_load,
+                               self.kc, self.cc, s, output)
+
     def state_matrix(self) -> np.ndarray:
         """4×4 matrix ``A`` of ``d/dt (x1, x2, v1, v2) = A·(x1, x2, v1, v2)`` [1/s, 1/s²]."""
         m, d, k, _ = self.matrices()
@@ -221,20 +228,27 @@ def frequency_response(actuator: Actuator, f_Hz, drive: DriveContext | None = No
     with ``jax.numpy`` on the actuator's own parameters, so it is differentiable with
     respect to them (e.g. to fit a measured spectrum).
     """
-    if output not in ("q", "x1", "x2"):
-        raise ValueError(f"output must be 'q', 'x1' or 'x2', got {output!r}")
     if drive is None:
         drive = DriveContext.make()
     p, sl, fr = actuator.piezo, actuator.slider, actuator.friction
     kc = fr.stiffness(drive)
     cc = _contact_damping(fr, drive)
     s = 1j * TWO_PI * jnp.asarray(f_Hz, dtype=float)
-    p1 = p.Mp * s**2 + (p.Dp + cc) * s + p.Kp + kc
-    p2 = sl.Ms * s**2 + (sl.Ds + cc) * s + sl.k_load + kc
+    return _chain_response(p.Mp, p.Dp, p.Kp, sl.Ms, sl.Ds, sl.k_load, kc, cc, s, output)
+
+
+def _chain_response(Mp, Dp, Kp, Ms, Ds, k_load, kc, cc, s, output: str):
+    """``output``/Γ of the stick chain at Laplace variable ``s`` [rad/s]: plain
+    arithmetic, so JAX and numpy operands alike (:func:`frequency_response`,
+    :meth:`StickChain.response`)."""
+    if output not in ("q", "x1", "x2"):
+        raise ValueError(f"output must be 'q', 'x1' or 'x2', got {output!r}")
+    p1 = Mp * s**2 + (Dp + cc) * s + Kp + kc
+    p2 = Ms * s**2 + (Ds + cc) * s + k_load + kc
     c = cc * s + kc
     delta = p1 * p2 - c**2
     num = {"q": p2 + c, "x1": p2, "x2": c}[output]
-    return p.Kp * num / delta
+    return Kp * num / delta
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,35 @@ def test_shared_drawing_writes_every_figure_in_order_with_in_process_jobs(tmp_pa
         assert paths[job.key].stat().st_size > 1000
 
 
+class _IdleHelper:
+    """A helper that draws nothing: every shared job is drawn here, in the order
+    draw_figures hands them out."""
+
+    def feed(self, jobs, take, done):
+        return None
+
+    def close(self):
+        return None
+
+
+def test_shared_jobs_are_handed_out_heaviest_first(tmp_path):
+    drawn = []
+
+    def draw(key, path):
+        drawn.append(key)
+        return path
+
+    weights = {"a": 1.0, "b": 3.0, "c": 1.0, "d": 6.0, "e": 1.0}
+    jobs = [FigureJob(k, draw, (k,), {"path": tmp_path / f"{k}.png"}, weight=w)
+            for k, w in weights.items()]
+    paths = draw_figures(jobs, _IdleHelper())
+    assert drawn == ["d", "b", "a", "c", "e"]  # heaviest first, equals in their order
+    assert list(paths) == list(weights)  # returned in the jobs' order
+    drawn.clear()
+    draw_figures(jobs)  # without a helper: in order
+    assert drawn == list(weights)
+
+
 def test_the_helper_draws_with_this_process_settings(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()

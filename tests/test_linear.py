@@ -121,6 +121,23 @@ def test_frequency_response_limits(actuator):
     assert stick_modes(loaded).antiresonance_undamped_Hz == pytest.approx(fa, rel=1e-12)
 
 
+def test_the_chains_numpy_response_is_frequency_response(actuator):
+    """StickChain.response (the figures' numpy evaluation) is frequency_response's
+    transfer function, whatever the output, for the default and a backward drive."""
+    f = np.array([0.0, 37.0, 595.0, 725.0, 1633.0, 2.0e4])
+    for drive in (None, ss.DriveContext.make(backward=True, amplitude=40.0, frequency=500.0)):
+        chain = stick_chain(actuator, drive)
+        for output in ("q", "x1", "x2"):
+            ref = np.asarray(frequency_response(actuator, f, drive, output=output))
+            got = chain.response(f, output)
+            np.testing.assert_allclose(got, ref, rtol=1e-12)
+            assert np.ptp(np.abs(ref)) > 0.1  # the frequencies span the chain's features
+    with pytest.raises(ValueError, match="output"):
+        chain.response(f, "x3")
+    with pytest.raises(ValueError, match="output"):
+        frequency_response(actuator, f, output="x3")
+
+
 def test_contact_parameters_come_from_the_friction_law(actuator):
     ch = stick_chain(actuator)
     assert ch.kc == pytest.approx(3.517e5) and ch.cc == 0.0

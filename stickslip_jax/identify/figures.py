@@ -125,8 +125,28 @@ def plot_hysteresis_loop(actuator, rec, q_sim, *, path: str | Path | None = None
     like with like the figure also draws Γ through the model's stick dynamics at the
     drive frequency (:func:`stickslip_jax.linear.frequency_response`: gain |H|/2 and
     time lag τ = −arg H/ω), Γ(t − τ)·|H|/2, and says how wide each loop is."""
+    return draw_hysteresis_loop(rec, q_sim, *hysteresis_loop_model(actuator, rec), path=path)
+
+
+def hysteresis_loop_model(actuator, rec) -> tuple[np.ndarray, complex | None]:
+    """What :func:`plot_hysteresis_loop` needs of the model: Γ at each sample of ``rec``
+    [m] and the stick chain's response H at its drive frequency [m/m] (None without one:
+    a drive other than a sine or sawtooth). Evaluated apart from the drawing, so that
+    :func:`draw_hysteresis_loop` takes plain data (a figure helper can draw it)."""
+    gamma = stroke_along(actuator, np.asarray(rec.voltage_V))
+    f0 = rec.drive.frequency_Hz if rec.drive.waveform in ("sine", "sawtooth") else None
+    if not f0:
+        return gamma, None
+    from ..linear import stick_chain
+
+    return gamma, complex(stick_chain(actuator).response(float(f0)))
+
+
+def draw_hysteresis_loop(rec, q_sim, gamma, h: complex | None, *,
+                         path: str | Path | None = None):
+    """:func:`plot_hysteresis_loop` from the model's Γ and H
+    (:func:`hysteresis_loop_model`)."""
     u = np.asarray(rec.voltage_V)
-    gamma = stroke_along(actuator, u)
     fig, ax = subplots(figsize=(6.4, 5.2))
     half_m = np.asarray(rec.position_m) / 2
     half_s = np.asarray(q_sim) / 2
@@ -136,13 +156,10 @@ def plot_hysteresis_loop(actuator, rec, q_sim, *, path: str | Path | None = None
     ax.plot(u, half_s * 1e6, color="tab:blue", lw=0.9, ls=(0, (4, 2)), label="simulated q/2")
     ax.plot(u, gamma * 1e6, color="tab:orange", lw=0.9,
             label="model Γ(U): PI stroke, rate-independent")
-    f0 = rec.drive.frequency_Hz if rec.drive.waveform in ("sine", "sawtooth") else None
+    f0 = rec.drive.frequency_Hz
     note = ("Γ(U) has no dynamics; the measured q/2 also carries\nthe piezo's lag behind "
             "Γ, which widens its loop")
-    if f0:
-        from ..linear import frequency_response
-
-        h = complex(np.asarray(frequency_response(actuator, float(f0))))
+    if h is not None:
         tau = -np.angle(h) / (2 * np.pi * f0)
         t = np.asarray(rec.time_s)
         lagged = np.interp(t - tau, t, gamma) * abs(h) / 2

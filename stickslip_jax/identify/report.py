@@ -19,8 +19,18 @@ from ..files import atomic_write_text, check_output_path
 from ..noise import noise_sigma
 from ..params import save_params
 from .dataset import classify_regime
-from .figures import plot_hysteresis_loop, plot_psd_overlay, plot_step_lengths
+from .figures import (
+    draw_hysteresis_loop,
+    hysteresis_loop_model,
+    plot_psd_overlay,
+    plot_step_lengths,
+)
 from .parameters import unit_of
+
+PSD_PANEL_WEIGHT = 3.0
+"""A PSD panel's drawing time against an overlay's (:attr:`~stickslip_jax.
+figure_helper.FigureJob.weight`): its log axes label many minor ticks (a two-panel
+PSD figure 1.4 s, an overlay 0.45 s, on the 2-core session machine)."""
 
 FIGURES = ("step_psd.png", "fig11_psd.png", "hysteresis_loop.png", "step_length.png")
 
@@ -198,9 +208,9 @@ def write_figures(result, fig_dir: Path, *, force: bool = False,
     sims = [np.asarray(result.q_sim[b, : r.n]) for b, r in enumerate(recs)]
     jobs = []
 
-    def add(key, draw, *args, in_process=False, **kwargs):
+    def add(key, draw, *args, weight=1.0, **kwargs):
         kwargs["path"] = check_output_path(fig_dir / f"{key}.png", force=force)
-        jobs.append(FigureJob(key, draw, args, kwargs, in_process=in_process))
+        jobs.append(FigureJob(key, draw, args, kwargs, weight=weight))
 
     for b, (rec, q) in enumerate(zip(recs, sims, strict=True)):
         shift = np.mean(rec.position_m - q)  # show the model on the recording's zero
@@ -210,16 +220,16 @@ def write_figures(result, fig_dir: Path, *, force: bool = False,
     steps = _pick(recs, sims, "step")
     if steps:
         add("step_psd", plot_psd_overlay, [steps[0][0]], [steps[0][1]],
-            title="step response PSD")
+            title="step response PSD", weight=PSD_PANEL_WEIGHT)
     fig11 = [x for a, f in ((20.0, 500.0), (40.0, 50.0))
              for x in _pick(recs, sims, "sawtooth", a, f)[:1]]
     if fig11:
         add("fig11_psd", plot_psd_overlay, [r for r, _ in fig11], [q for _, q in fig11],
-            title="sawtooth responses (Lu 2015 Fig. 11)")
+            title="sawtooth responses (Lu 2015 Fig. 11)", weight=PSD_PANEL_WEIGHT * len(fig11))
     slow = _pick(recs, sims, "sine")
-    if slow:  # it evaluates the model: drawn in this process
-        add("hysteresis_loop", plot_hysteresis_loop, result.actuator, slow[0][0],
-            slow[0][1], in_process=True)
+    if slow:  # the model evaluated here, the figure drawn from plain data
+        add("hysteresis_loop", draw_hysteresis_loop, slow[0][0], slow[0][1],
+            *hysteresis_loop_model(result.actuator, slow[0][0]))
     if _pick(recs, sims, "sawtooth"):
         add("step_length", plot_step_lengths, recs, sims)
     return draw_figures(jobs, helper)
