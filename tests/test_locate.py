@@ -155,3 +155,19 @@ def test_ljung_box_separates_white_from_coloured():
     coloured = np.convolve(white, np.ones(5) / 5, mode="same")
     assert ljung_box(white)[1] > 1e-3
     assert ljung_box(coloured)[1] < 1e-10
+
+
+def test_ljung_box_p_value_is_the_chi2_tail():
+    """The p-value is χ²'s survival function at the statistic: scipy.stats's to the bit
+    (computed with scipy.special's, lighter to import), over white to strongly
+    coloured residuals and other lag counts."""
+    from scipy import stats
+
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal(3000)
+    for width in (1, 2, 3, 8):
+        e = np.convolve(white, np.ones(width) / width, mode="same")
+        for lags in (5, 20, 40):
+            q, p = ljung_box(e, lags)
+            assert p == float(stats.chi2.sf(q, lags))
+            assert (p > 1e-3) if width == 1 else (p < 1e-6)
