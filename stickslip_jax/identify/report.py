@@ -27,10 +27,11 @@ from .figures import (
 )
 from .parameters import unit_of
 
-PSD_PANEL_WEIGHT = 3.0
+PSD_PANEL_WEIGHT = 1.5
 """A PSD panel's drawing time against an overlay's (:attr:`~stickslip_jax.
-figure_helper.FigureJob.weight`): its log axes label many minor ticks (a two-panel
-PSD figure 1.4 s, an overlay 0.45 s, on the 2-core session machine)."""
+figure_helper.FigureJob.weight`): its log axes carry many minor ticks (a two-panel
+PSD figure 1.3-1.6 s, an overlay 0.35-0.45 s, on the 2-core session machine). Only
+the order of drawing depends on it: the PSD figures go first."""
 
 FIGURES = ("step_psd.png", "fig11_psd.png", "hysteresis_loop.png", "step_length.png")
 
