@@ -23,38 +23,26 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))  # results_record
 from results_record import write_record  # noqa: E402
 
-from stickslip_jax.identify.initial import measured_step_mode  # noqa: E402
+from stickslip_jax.identify.initial import (  # noqa: E402
+    measured_step_mode,
+    ringing_on_grid,
+)
 from stickslip_jax.io import load_recording  # noqa: E402
 from stickslip_jax.synthetic import paper_protocol, simulate_set  # noqa: E402
 from stickslip_jax.testing import random_sets  # noqa: E402
 
 
-def by_einsum(step, band=(100.0, 6000.0), window_s=0.01):
-    """``measured_step_mode`` as it was before the change (einsum's loops)."""
-    q = np.asarray(step.position_m, dtype=float)
-    k0 = int(np.argmax(np.abs(np.diff(q)))) + 2
-    seg = q[k0:k0 + max(int(window_s / step.dt), 16)]
-    if len(seg) < 16:
-        return None
-    seg = seg - seg.mean()
-    t = np.arange(len(seg)) * step.dt
-    zetas = np.linspace(0.02, 0.9, 45)
-    best = (np.inf, np.nan, np.nan)
-    for f in np.geomspace(band[0], min(band[1], 0.45 / step.dt), 500):
-        w = 2 * np.pi * f
-        decay = np.exp(-np.outer(zetas * w / np.sqrt(1 - zetas**2), t))
-        basis = np.stack([np.ones_like(decay), decay * np.cos(w * t), decay * np.sin(w * t)],
-                         axis=-1)
-        gram = np.einsum("zli,zlj->zij", basis, basis)
-        rhs = np.einsum("zli,l->zi", basis, seg)
-        coef = np.linalg.solve(gram + 1e-30 * np.eye(3), rhs[..., None])[..., 0]
-        cost = np.sum((np.einsum("zli,zi->zl", basis, coef) - seg) ** 2, axis=1)
-        i = int(np.argmin(cost))
-        if cost[i] < best[0]:
-            best = (float(cost[i]), float(f), float(zetas[i]))
-    if not best[0] < 0.5 * float(np.sum(seg**2)):
-        return None
-    return best[1], best[2]
+def einsum_costs(basis, seg):
+    """The grid row's costs as ``measured_step_mode`` made them before (einsum's loops)."""
+    gram = np.einsum("zli,zlj->zij", basis, basis)
+    rhs = np.einsum("zli,l->zi", basis, seg)
+    coef = np.linalg.solve(gram + 1e-30 * np.eye(3), rhs[..., None])[..., 0]
+    return np.sum((np.einsum("zli,zi->zl", basis, coef) - seg) ** 2, axis=1)
+
+
+def by_einsum(step):
+    """``measured_step_mode`` as it was before the change."""
+    return ringing_on_grid(step, einsum_costs)
 
 
 def steps() -> list:

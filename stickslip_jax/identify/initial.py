@@ -74,6 +74,24 @@ def measured_step_mode(step: Recording, *, band=(100.0, 6000.0), window_s: float
     dominates any differentiated spectrum at high frequency. None when the segment is
     too short or the best fit explains less than half of the segment's variance.
     """
+    return ringing_on_grid(step, ringing_costs, band=band, window_s=window_s)
+
+
+def ringing_costs(basis: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Least-squares cost of ``seg`` (L,) [m] on each of the bases ``basis`` (Z, L, 3),
+    their coefficients solved linearly [m²]. Batched matrix products, not einsum, whose
+    unoptimised loops took 0.75 of :func:`measured_step_mode`'s 0.85 s (issue #64); the
+    grid point chosen is the same on every bundled step and 60 of random truths
+    (benchmarks/experiments/step_mode_products.py)."""
+    basis_t = basis.transpose(0, 2, 1)  # (Z, 3, L)
+    coef = np.linalg.solve(basis_t @ basis + 1e-30 * np.eye(3), basis_t @ seg[:, None])
+    return np.sum(((basis @ coef)[..., 0] - seg) ** 2, axis=1)
+
+
+def ringing_on_grid(step: Recording, costs, *, band=(100.0, 6000.0),
+                    window_s: float = 0.01) -> tuple[float, float] | None:
+    """:func:`measured_step_mode` with ``costs(basis, seg)`` (:func:`ringing_costs`'s
+    signature) the cost of each damping ratio at one frequency."""
     q = np.asarray(step.position_m, dtype=float)
     k0 = int(np.argmax(np.abs(np.diff(q)))) + 2  # after the first-order-hold ramp
     seg = q[k0:k0 + max(int(window_s / step.dt), 16)]
@@ -88,12 +106,7 @@ def measured_step_mode(step: Recording, *, band=(100.0, 6000.0), window_s: float
         decay = np.exp(-np.outer(zetas * w / np.sqrt(1 - zetas**2), t))  # (Z, L)
         basis = np.stack([np.ones_like(decay), decay * np.cos(w * t), decay * np.sin(w * t)],
                          axis=-1)  # (Z, L, 3)
-        # Batched matrix products, not einsum, whose unoptimised loops took 0.75 of this
-        # function's 0.85 s (issue #64); the grid point chosen is the same on every
-        # bundled step and the tests' random truths.
-        basis_t = basis.transpose(0, 2, 1)  # (Z, 3, L)
-        coef = np.linalg.solve(basis_t @ basis + 1e-30 * np.eye(3), basis_t @ seg[:, None])
-        cost = np.sum(((basis @ coef)[..., 0] - seg) ** 2, axis=1)
+        cost = costs(basis, seg)
         i = int(np.argmin(cost))
         if cost[i] < best[0]:
             best = (float(cost[i]), float(f), float(zetas[i]))
